@@ -1,0 +1,17 @@
+"""Shared test set-up: tests never read ../shared at run time; their data lives in tests/data with its licences."""
+
+import os
+import pathlib
+
+import pytest
+
+DATA = pathlib.Path(__file__).parent / "data"
+
+
+@pytest.fixture
+def data_dir() -> pathlib.Path:
+    return DATA
+
+
+def pytest_configure(config):
+    os.environ.setdefault("JAX_PLATFORMS", "cpu")
