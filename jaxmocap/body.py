@@ -294,7 +294,9 @@ NEG_Y = (0.0, -1.0, 0.0)
 def _translation_dofs(prefix: str, height=0.0):
     """Prismatic x, y, z DOFs; the rest value of z is ``height`` (the root's height when standing)."""
     rest = (0.0, 0.0, height)
-    return [(f"{prefix}_t{a}", "P", ax, -_BIG, _BIG, r) for a, ax, r in zip("xyz", (X, Y, Z), rest, strict=True)]
+    return [
+        (f"{prefix}_t{a}", "P", ax, -_BIG, _BIG, r) for a, ax, r in zip("xyz", (X, Y, Z), rest, strict=True)
+    ]
 
 
 def _arm(b: _Builder, dims, side: str, parent: str, shoulder_point, shoulder_dofs: bool = True):

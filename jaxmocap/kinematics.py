@@ -164,7 +164,11 @@ def axis_angle9(axis, theta) -> Rot9:
 
 def matmul9(A: Rot9, B: Rot9) -> Rot9:
     """Product of two 9-tuple rotations, written as explicit multiply-adds."""
-    return tuple(A[3 * i] * B[j] + A[3 * i + 1] * B[3 + j] + A[3 * i + 2] * B[6 + j] for i in range(3) for j in range(3))
+    return tuple(
+        A[3 * i] * B[j] + A[3 * i + 1] * B[3 + j] + A[3 * i + 2] * B[6 + j]
+        for i in range(3)
+        for j in range(3)
+    )
 
 
 def matvec9(A: Rot9, v: Vec3) -> Vec3:
@@ -201,7 +205,9 @@ class Topology:
     def __post_init__(self):
         S = len(self.segment_names)
         if not (len(self.parents) == len(self.segment_dofs) == len(self.rest_rotated) == S):
-            raise ValueError("segment_names, parents, segment_dofs and rest_rotated must have one entry a segment")
+            raise ValueError(
+                "segment_names, parents, segment_dofs and rest_rotated must have one entry a segment"
+            )
         for s, p in enumerate(self.parents):
             if p >= s:
                 raise ValueError(f"segment {self.segment_names[s]!r}: parent {p} must come before it")
