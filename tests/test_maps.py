@@ -1,0 +1,62 @@
+"""Pixel lookups against NumPy indexing and OpenCV's bilinear remap."""
+
+import cv2
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.test_util import check_grads
+
+from jaxmocap import maps
+
+
+def _maps(rng, V=2, H=37, W=53):
+    return rng.uniform(0, 255, size=(V, H, W)).astype(np.float32)
+
+
+def test_nearest_matches_numpy_and_counts_outside():
+    rng = np.random.default_rng(0)
+    M = _maps(rng)
+    V, H, W = M.shape
+    uv = rng.uniform([-5, -5], [W + 5, H + 5], size=(V, 400, 2)).astype(np.float32)
+    vals, inside = maps.lookup_nearest(jnp.asarray(M), jnp.asarray(uv))
+    iu = np.clip(np.round(uv[..., 0]), 0, W - 1).astype(int)
+    iv = np.clip(np.round(uv[..., 1]), 0, H - 1).astype(int)
+    ref = np.stack([M[v][iv[v], iu[v]] for v in range(V)])
+    np.testing.assert_array_equal(np.asarray(vals), ref)
+    ref_inside = (np.round(uv[..., 0]) >= 0) & (np.round(uv[..., 0]) <= W - 1)
+    ref_inside &= (np.round(uv[..., 1]) >= 0) & (np.round(uv[..., 1]) <= H - 1)
+    np.testing.assert_array_equal(np.asarray(inside), ref_inside)
+
+
+def test_bilinear_matches_cv2_remap():
+    rng = np.random.default_rng(1)
+    M = _maps(rng)
+    V, H, W = M.shape
+    uv = rng.uniform([0, 0], [W - 1, H - 1], size=(V, 300, 2)).astype(np.float32)
+    vals, inside = maps.lookup_bilinear(jnp.asarray(M), jnp.asarray(uv))
+    assert bool(jnp.all(inside))
+    for v in range(V):
+        ref = cv2.remap(M[v], uv[v, :, 0:1], uv[v, :, 1:2], cv2.INTER_LINEAR)[:, 0]
+        # OpenCV quantises the fractional part to 1/32 pixel (INTER_BITS = 5)
+        np.testing.assert_allclose(np.asarray(vals[v]), ref, atol=255 / 32)
+        np.testing.assert_allclose(np.asarray(vals[v]).mean(), ref.mean(), rtol=1e-3)
+
+
+def test_bilinear_exact_at_pixel_centres_and_differentiable():
+    rng = np.random.default_rng(2)
+    M = _maps(rng, V=1, H=9, W=11)
+    iu, iv = np.meshgrid(np.arange(11), np.arange(9))
+    uv = np.stack([iu.ravel(), iv.ravel()], -1)[None].astype(np.float32)
+    vals, _ = maps.lookup_bilinear(jnp.asarray(M), jnp.asarray(uv))
+    np.testing.assert_allclose(np.asarray(vals[0]), M[0].ravel(), rtol=1e-6)
+    with jax.enable_x64(True):
+        M64 = jnp.asarray(M, jnp.float64)
+        check_grads(lambda p: maps.lookup_bilinear(M64, p)[0], (jnp.asarray([[[3.3, 4.6], [7.2, 1.9]]]),), order=1)
+
+
+def test_non_finite_coordinates_are_outside_not_nan():
+    M = jnp.ones((1, 4, 4))
+    uv = jnp.asarray([[[jnp.nan, 1.0], [1.0, jnp.inf]]])
+    for f in (maps.lookup_nearest, maps.lookup_bilinear):
+        vals, inside = f(M, uv)
+        assert not bool(jnp.any(inside)) and bool(jnp.all(jnp.isfinite(vals)))
