@@ -29,6 +29,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -290,13 +291,17 @@ def transform_points(
 
     Returns:
       ``(..., P, 3)``, computed per coordinate over ``(..., P)`` arrays.
+
+    The result passes through ``lax.optimization_barrier``: without it XLA fuses the per-point gather into every
+    consumer (a projection reads each coordinate several times) and recomputes it there — measured 3.7× slower
+    for FK + projection (``benchmarks/bench_kinematics.py``).
     """
     seg = np.asarray(segment_of_point, dtype=np.int32)
     Rp = R[..., seg, :, :]
     tp = t[..., seg, :]
     px, py, pz = points[:, 0], points[:, 1], points[:, 2]
     out = [Rp[..., i, 0] * px + Rp[..., i, 1] * py + Rp[..., i, 2] * pz + tp[..., i] for i in range(3)]
-    return jnp.stack(out, -1)
+    return jax.lax.optimization_barrier(jnp.stack(out, -1))
 
 
 def euler_zyx(angles: jnp.ndarray) -> jnp.ndarray:

@@ -103,7 +103,9 @@ class Likelihood:
             else np.asarray(schedule, dtype=np.float32)
         )
         if lam.shape != (num_layers, len(cue_list)):
-            raise ValueError(f"schedule must have shape (num_layers, num_cues) = {(num_layers, len(cue_list))}")
+            raise ValueError(
+                f"schedule must have shape (num_layers, num_cues) = {(num_layers, len(cue_list))}"
+            )
         V = rig.num_views
         w = np.ones(V, np.float32) if view_weights is None else np.asarray(view_weights, np.float32)
         if w.shape != (V,):
@@ -160,10 +162,14 @@ class Likelihood:
             C = camera.camera_centres(self.rig)
             pts = []
             if prims.num_cones:
-                pc = jax.vmap(lambda c: flesh.cone_contours(prims.cone_a, prims.cone_b, prims.r_a, prims.r_b, c, k))(C)
+                pc = jax.vmap(
+                    lambda c: flesh.cone_contours(prims.cone_a, prims.cone_b, prims.r_a, prims.r_b, c, k)
+                )(C)
                 pts.append(pc.reshape(C.shape[0], -1, 3))
             if prims.num_ellipsoids:
-                pe = jax.vmap(lambda c: flesh.ellipsoid_contours(prims.ell_centre, prims.ell_axes, c, 2 * k))(C)
+                pe = jax.vmap(lambda c: flesh.ellipsoid_contours(prims.ell_centre, prims.ell_axes, c, 2 * k))(
+                    C
+                )
                 pts.append(pe.reshape(C.shape[0], -1, 3))
             Q = jnp.concatenate(pts, axis=1)  # (V, Q, 3): each view's own contour points
             g["contour_uv"] = _project_own_view(self.rig, Q)
@@ -252,5 +258,7 @@ def schedule_preset(name: str, cue_names: Sequence[str], num_layers: int) -> np.
             if fine:
                 lam[:, c] = (np.arange(L) >= L // 2).astype(float) if L > 1 else 1.0
         else:
-            raise ValueError(f"unknown schedule {name!r}; choose apf, m-apf, fbapf, fbapf2, fbapf3 or li-kulic")
+            raise ValueError(
+                f"unknown schedule {name!r}; choose apf, m-apf, fbapf, fbapf2, fbapf3 or li-kulic"
+            )
     return lam.astype(np.float32)

@@ -28,7 +28,9 @@ def _stereo_rig():
     """Two cameras 30 cm apart, 1.3 m high, 3 m in front of the subject (the IROS 2007 robot head)."""
     Rs, ts = zip(*[_look_at(np.array([3.0, y, 1.3]), [0.0, 0.0, 1.0]) for y in (-0.15, 0.15)], strict=True)
     K = np.array([[262.5, 0.0, 159.5], [0.0, 262.5, 119.5], [0.0, 0.0, 1.0]])
-    return camera.from_opencv(np.stack([K, K]), np.zeros((2, 5)), np.stack(Rs), np.stack(ts), image_size=[(W, H)] * 2)
+    return camera.from_opencv(
+        np.stack([K, K]), np.zeros((2, 5)), np.stack(Rs), np.stack(ts), image_size=[(W, H)] * 2
+    )
 
 
 def _observe(model, rig, x):
@@ -39,7 +41,9 @@ def _observe(model, rig, x):
         mask = (depth > 0).astype(np.uint8)
         e = cv2.Canny(mask * 255, 50, 150)
         fgs.append(mask.astype(np.float32))
-        eds.append(cv2.GaussianBlur(cv2.dilate(e, np.ones((3, 3), np.uint8)).astype(np.float32) / 255, (5, 5), 1.0))
+        eds.append(
+            cv2.GaussianBlur(cv2.dilate(e, np.ones((3, 3), np.uint8)).astype(np.float32) / 255, (5, 5), 1.0)
+        )
         dts.append(cv2.distanceTransform((e == 0).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE))
         deps.append(depth.astype(np.float32))
     return make_observation(rig, foreground=fgs, edges=eds, edge_dt=dts, depth=deps)
@@ -49,7 +53,12 @@ def _observe(model, rig, x):
 def scene():
     model = body.full25()
     rig = _stereo_rig()
-    x = model.rest_pose.at[model.dof_index("left_shoulder_rx")].set(0.8).at[model.dof_index("left_elbow")].set(0.9)
+    x = (
+        model.rest_pose.at[model.dof_index("left_shoulder_rx")]
+        .set(0.8)
+        .at[model.dof_index("left_elbow")]
+        .set(0.9)
+    )
     return model, rig, x, _observe(model, rig, x)
 
 
@@ -65,7 +74,9 @@ def test_energy_minimum_near_truth(scene, dof):
     lik = L.Likelihood.create(model, rig, [L.Cue(n) for n in CUES], surface_points=400)
     i = model.dof_index(dof)
     angles = np.round(np.arange(-0.5, 0.51, 0.1), 2) + float(x[i])
-    E = np.asarray(jax.jit(jax.vmap(lik.energies, in_axes=(0, None)))(jnp.stack([x.at[i].set(a) for a in angles]), obs))
+    E = np.asarray(
+        jax.jit(jax.vmap(lik.energies, in_axes=(0, None)))(jnp.stack([x.at[i].set(a) for a in angles]), obs)
+    )
     truth = int(np.argmin(np.abs(angles - float(x[i]))))
     for c, name in enumerate(CUES):
         assert E[truth, c] <= E[:, c].max(), name
@@ -87,9 +98,13 @@ def test_differentiable_cue_gradients(scene):
     with jax.enable_x64(True):
         m64 = body.full25(dtype=jnp.float64)
         lik64 = L.Likelihood.create(m64, rig, [L.Cue("edge_distance")])
-        obs64 = jax.tree_util.tree_map(lambda a: jnp.asarray(a, jnp.float64) if a.dtype == jnp.float32 else a, obs)
+        obs64 = jax.tree_util.tree_map(
+            lambda a: jnp.asarray(a, jnp.float64) if a.dtype == jnp.float32 else a, obs
+        )
         x64 = jnp.asarray(x, jnp.float64) + 0.013
-        check_grads(lambda x: lik64.log_likelihood(x, obs64), (x64,), order=1, modes=["rev"], atol=1e-3, rtol=1e-3)
+        check_grads(
+            lambda x: lik64.log_likelihood(x, obs64), (x64,), order=1, modes=["rev"], atol=1e-3, rtol=1e-3
+        )
 
 
 def test_schedules_and_compile_once(scene):

@@ -1,0 +1,121 @@
+"""OpenPose 2D keypoint JSON (one file per frame, ``people[i].pose_keypoints_2d = [x0, y0, c0, x1, …]``).
+
+Pixel coordinates are (column, row) of the image the detector ran on; a keypoint that was not detected is written
+as ``0, 0, 0``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+
+import numpy as np
+
+from jaxmocap.errors import MocapInputError
+
+__all__ = ["BODY_25B_KEYPOINTS", "load_openpose_json", "load_openpose_folder"]
+
+#: Keypoint names of OpenPose's BODY_25B model, in output order.
+BODY_25B_KEYPOINTS: tuple[str, ...] = (
+    "Nose",
+    "LEye",
+    "REye",
+    "LEar",
+    "REar",
+    "LShoulder",
+    "RShoulder",
+    "LElbow",
+    "RElbow",
+    "LWrist",
+    "RWrist",
+    "LHip",
+    "RHip",
+    "LKnee",
+    "RKnee",
+    "LAnkle",
+    "RAnkle",
+    "UpperNeck",
+    "HeadTop",
+    "LBigToe",
+    "LSmallToe",
+    "LHeel",
+    "RBigToe",
+    "RSmallToe",
+    "RHeel",
+)
+
+
+def _person_array(path, person: dict, k: int) -> np.ndarray:
+    if not isinstance(person, dict) or "pose_keypoints_2d" not in person:
+        raise MocapInputError(path, f"person {k} has no pose_keypoints_2d")
+    kp = person["pose_keypoints_2d"]
+    if not isinstance(kp, list) or len(kp) % 3 != 0:
+        raise MocapInputError(path, f"person {k}: pose_keypoints_2d is not a list of (x, y, c) triples")
+    try:
+        arr = np.asarray([float(v) for v in kp], dtype=np.float64).reshape((-1, 3))
+    except (TypeError, ValueError, OverflowError):
+        raise MocapInputError(path, f"person {k}: pose_keypoints_2d holds a non-number") from None
+    if not np.all(np.isfinite(arr)):
+        raise MocapInputError(path, f"person {k}: non-finite keypoint values")
+    return arr
+
+
+def load_openpose_json(
+    path: str | os.PathLike, person: str | int = "first", num_keypoints: int = len(BODY_25B_KEYPOINTS)
+) -> np.ndarray:
+    """Keypoints ``(K, 3)`` = (x, y, confidence) of one person in an OpenPose JSON file.
+
+    ``person``: ``"first"`` (``people[0]``), ``"most_confident"`` (largest summed confidence) or an index. A file
+    with no (such) person gives zeros, OpenPose's own "not detected", of ``num_keypoints`` rows.
+    """
+    try:
+        with open(path, encoding="utf-8") as f:
+            data = json.load(f)
+    except OSError as e:
+        raise MocapInputError(path, f"cannot read: {e.strerror or e}") from None
+    except UnicodeDecodeError:
+        raise MocapInputError(path, "not a UTF-8 text file") from None
+    except json.JSONDecodeError as e:
+        raise MocapInputError(path, f"invalid JSON: {e.msg}", e.lineno) from None
+    except (RecursionError, ValueError) as e:
+        raise MocapInputError(path, f"invalid JSON: {e}") from None
+    if not isinstance(data, dict) or not isinstance(data.get("people"), list):
+        raise MocapInputError(path, "no 'people' list: not an OpenPose keypoint file")
+    people = [_person_array(path, p, k) for k, p in enumerate(data["people"])]
+    for k, p in enumerate(people):
+        if p.shape[0] != num_keypoints:
+            raise MocapInputError(path, f"person {k} has {p.shape[0]} keypoints, expected {num_keypoints}")
+    if person == "first":
+        idx = 0
+    elif person == "most_confident":
+        idx = int(np.argmax([p[:, 2].sum() for p in people])) if people else 0
+    elif isinstance(person, int) and not isinstance(person, bool):
+        idx = person
+    else:
+        raise ValueError(f"person must be 'first', 'most_confident' or an index, not {person!r}")
+    if idx >= len(people) or idx < 0:
+        return np.zeros((num_keypoints, 3))
+    return people[idx]
+
+
+def load_openpose_folder(
+    folder: str | os.PathLike, person: str | int = "first", num_keypoints: int = len(BODY_25B_KEYPOINTS)
+) -> np.ndarray:
+    """Keypoints ``(T, K, 3)`` of all ``*.json`` files in ``folder``, in order of the frame number at the end of the
+    file name (``cam01.0007.json``, ``…_000000000007_keypoints.json``), see :func:`load_openpose_json`."""
+    folder = os.fspath(folder)
+    try:
+        files = [f for f in os.listdir(folder) if f.lower().endswith(".json")]
+    except OSError as e:
+        raise MocapInputError(folder, f"cannot list: {e.strerror or e}") from None
+    if not files:
+        raise MocapInputError(folder, "no .json files")
+
+    def frame_number(name: str):
+        m = re.findall(r"\d+", name)
+        return (int(m[-1]) if m else math.inf, name)
+
+    files.sort(key=frame_number)
+    return np.stack([load_openpose_json(os.path.join(folder, f), person, num_keypoints) for f in files])
