@@ -1,0 +1,35 @@
+"""The ``jaxmocap`` command: calibration conversion round-trips; bad input is one message and exit status 2."""
+
+import subprocess
+import sys
+
+import cv2
+import numpy as np
+
+from jaxmocap import camera, cli
+
+
+def test_calib_convert_round_trip(tmp_path, data_dir):
+    out = tmp_path / "parsec.toml"
+    assert cli.main(["calib", "convert", str(data_dir / "calib" / "parsec" / "CALIB"), str(out)]) == 0
+    a = camera.load_calibration(data_dir / "calib" / "parsec" / "CALIB")
+    b = camera.load_calibration(out)
+    assert b.names == a.names and b.image_size == a.image_size
+    X = np.random.default_rng(0).uniform([-1, -1, 0], [1, 1, 2], size=(50, 3))
+    for v in range(a.num_views):
+        # the written file is read by OpenCV users with cv2.projectPoints (no skew term in these cameras)
+        rvec = cv2.Rodrigues(np.asarray(b.R[v]))[0]
+        ref, _ = cv2.projectPoints(X, rvec, np.asarray(b.t[v]), np.asarray(b.K[v]), np.asarray(b.dist[v]))
+        uv_a = np.asarray(camera.project(a.to_jax(np.float32), np.asarray(X, np.float32)))[v]
+        np.testing.assert_allclose(uv_a, ref[:, 0], atol=1e-2)
+
+
+def test_bad_input_is_one_line_and_status_2(tmp_path):
+    bad = tmp_path / "broken.toml"
+    bad.write_text("[cam_1]\nmatrix = [[1, 0], \n")
+    r = subprocess.run(
+        [sys.executable, "-m", "jaxmocap.cli", "calib", "show", str(bad)], capture_output=True, text=True
+    )
+    assert r.returncode == 2
+    assert "broken.toml" in r.stderr and "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
