@@ -170,6 +170,9 @@ _DEG = math.pi / 180.0
 _BIG = 100.0  # metres / radians treated as "unlimited" for root translation
 _NECK_HEIGHT = 1.45  # rest height of the base of the neck for the upper-body presets (standing adult)
 
+#: Dimensions that are signed offsets (e.g. CMU shoulders sit above the base of the neck: a negative drop).
+SIGNED_DIMENSION_SUFFIX = "_drop"
+
 DEFAULT_DIMENSIONS: dict[str, float] = {
     "torso_length": 0.50,  # pelvis centre to base of neck
     "torso_radius_bottom": 0.13,
@@ -517,8 +520,10 @@ def load_body_file(path: str | os.PathLike) -> tuple[str, dict[str, float]]:
         raise MocapInputError(path, "[dimensions] must be a table")
     out = {}
     for k, v in dims.items():
-        if not isinstance(v, int | float) or isinstance(v, bool) or not math.isfinite(v) or v < 0:
-            raise MocapInputError(path, f"dimension {k!r} must be a non-negative number, got {v!r}")
+        if not isinstance(v, int | float) or isinstance(v, bool) or not math.isfinite(v):
+            raise MocapInputError(path, f"dimension {k!r} must be a finite number, got {v!r}")
+        if v < 0 and not k.endswith(SIGNED_DIMENSION_SUFFIX):
+            raise MocapInputError(path, f"dimension {k!r} must be non-negative, got {v!r}")
         out[k] = float(v)
     return name, out
 

@@ -189,7 +189,9 @@ class Likelihood:
         return jnp.stack(out)
 
     def log_likelihood(self, x: jnp.ndarray, obs: Observation, layer=0) -> jnp.ndarray:
-        """Scalar ``log p_l(z | x)`` of one particle at annealing layer ``layer`` (traced or static int)."""
+        """Scalar ``log p_l(z | x)`` of one particle at annealing layer ``layer``: an int (traced or static) or the
+        :class:`jaxmocap.filters.base.Layer` the annealed filters pass (its ``index`` is used)."""
+        layer = getattr(layer, "index", layer)
         lam = self.schedule[jnp.clip(layer, 0, self.schedule.shape[0] - 1)]
         return -jnp.sum(lam * self.energies(x, obs))
 

@@ -85,6 +85,12 @@ def test_body_file_round_trip_and_errors(tmp_path):
     bad.write_text('model = "full25"\n[dimensions]\nforearm_length = "long"\n')
     with pytest.raises(MocapInputError, match="bad.toml"):
         body.load_body(bad)
+    bad.write_text('model = "full25"\n[dimensions]\nforearm_length = -0.2\n')
+    with pytest.raises(MocapInputError, match="non-negative"):
+        body.load_body(bad)
+    signed = tmp_path / "signed.toml"
+    body.save_body(signed, "full25", {"shoulder_drop": -0.047})  # CMU shoulders sit above the neck base
+    np.testing.assert_allclose(np.asarray(body.load_body(signed).offset), np.asarray(body.full25({"shoulder_drop": -0.047}).offset))
     bad.write_text("model = [\n")
     with pytest.raises(MocapInputError, match="not valid TOML"):
         body.load_body(bad)
