@@ -1,0 +1,215 @@
+"""Annealed particle filter (APF; Deutscher, Blake & Reid 2000; Deutscher & Reid 2005) and the interleaved variant IAPF
+(Fontmarty et al. IROS 2007, Table I): ICONDENSATION's importance function in the first layer only.
+
+Per frame, ``L`` layers ``l = 0 … L-1`` (0 runs first: broadest diffusion, smallest β), each on ``N`` particles:
+
+1. propose: layer 0 resamples the previous frame's final weighted set and diffuses with ``Δ · s_0`` (the motion
+   model); in the IAPF it instead draws from the ICONDENSATION mixture (dynamics with ``Δ · s_0``, detector-driven
+   Gaussian, prior) and keeps the importance correction ``f/q`` (see :mod:`jaxmocap.filters.icondensation`);
+   layers ``l ≥ 1`` resample the previous layer's weighted set and diffuse with ``Δ · s_l``; then the joint limits;
+2. weigh: ``ll = loglik_batch(X, observation, layer)``, β_l from the schedule (:class:`jaxmocap.annealing.Schedule`:
+   fixed, Deutscher's survival-rate rule, the thesis correction, or PARSEC's bisection; an adaptive β is chosen on
+   ``ll`` alone), ``log w_i = β_l ll_i (+ log f/q in the IAPF's first layer)``, normalised;
+3. after the last layer: estimate = weighted mean of the final weighted set (circular for flagged entries), best
+   particle; the final weighted set is the state carried to the next frame.
+
+``s_l`` are the schedule's diffusion scales (``Schedule.scales``). The likelihood receives a
+:class:`jaxmocap.filters.base.Layer` — ``(index, beta, partition)`` — so that it can change its cue weights per layer
+(feature-based annealing, López Méndez 2009 eq. 5.2: ``λ_c(β, l)``): signature
+``loglik_batch(X (N, D), observation, layer) -> (N,)``; a likelihood that ignores ``layer`` gives the plain APF.
+
+PARSEC mode (:meth:`APF.parsec`): PARSEC's diffusion schedule and β bisection on ``[0, 1000]`` with the overflow
+quirk, multinomial resampling, plain weighted mean of the final set, no motion model beyond the annealing diffusion.
+
+Recovery: a layer in which no log-likelihood is finite never yields NaN: its particles are replaced (``"reinit"``:
+around the previous frame's estimate with std ``recovery_widen · Δ``; ``"uniform"``: the proposed particles kept)
+with uniform weights, the later layers go on from there, and ``Info.recovered`` is set.
+
+The whole step (all layers) is one function to ``jit``; the layers run in a ``lax.scan`` (the IAPF's first layer,
+which differs, before it).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+
+from jaxmocap import annealing
+from jaxmocap.annealing import Schedule
+from jaxmocap.filters import base, icondensation
+from jaxmocap.filters.base import Info, Layer, State
+
+__all__ = ["APF", "Info", "Layer", "State", "ignore_layer"]
+
+FIRST_LAYERS = ("dynamics", "icondensation")
+
+
+def ignore_layer(loglik_batch: Callable) -> Callable:
+    """Adapt ``loglik_batch(X, observation)`` to the annealed filters' ``(X, observation, layer)`` signature."""
+
+    def wrapped(X, observation, layer):
+        del layer
+        return loglik_batch(X, observation)
+
+    return wrapped
+
+
+@dataclasses.dataclass(frozen=True)
+class APF:
+    """Annealed particle filter; with ``first_layer="icondensation"`` the IAPF.
+
+    Arrays (traced): ``diffusion_std (D,)`` (Δ), ``lower, upper``; for the IAPF also ``prior_mean``, ``prior_std``
+    and ``detection_std`` (None → Δ · s_0).
+    Static: ``loglik_batch(X, observation, layer)``, ``num_particles`` (per layer), ``schedule``
+    (:class:`jaxmocap.annealing.Schedule`), ``first_layer`` (``"dynamics"`` or ``"icondensation"``), the
+    ICONDENSATION options (``dynamics_fraction``, ``detection_fraction``, ``proposal_center``, ``weighting``),
+    ``resampling``, ``limit_mode``, ``circular``, ``recovery``, ``recovery_widen``.
+    """
+
+    loglik_batch: Callable
+    diffusion_std: jnp.ndarray
+    num_particles: int
+    schedule: Schedule = Schedule()
+    lower: jnp.ndarray | None = None
+    upper: jnp.ndarray | None = None
+    first_layer: str = "dynamics"
+    prior_mean: jnp.ndarray | None = None
+    prior_std: jnp.ndarray | None = None
+    detection_std: jnp.ndarray | None = None
+    dynamics_fraction: float = 0.5
+    detection_fraction: float = 0.4
+    proposal_center: Callable | None = None
+    weighting: str = "mixture"
+    resampling: str = "systematic"
+    limit_mode: str = "clip"
+    circular: tuple[bool, ...] | None = None
+    recovery: str = "reinit"
+    recovery_widen: float = 3.0
+
+    def __post_init__(self):
+        if self.first_layer not in FIRST_LAYERS:
+            raise ValueError(f"unknown first_layer {self.first_layer!r}; choose one of {FIRST_LAYERS}")
+        if self.first_layer == "icondensation":
+            icondensation.counts(self.num_particles, self.dynamics_fraction, self.detection_fraction)
+            if self.prior_mean is None or self.prior_std is None:
+                raise ValueError("the IAPF needs prior_mean and prior_std (the prior p0 of ICONDENSATION)")
+
+    @property
+    def num_layers(self) -> int:
+        return self.schedule.num_layers
+
+    @classmethod
+    def parsec(
+        cls, loglik_batch: Callable, pose_std: jnp.ndarray, num_particles: int, num_layers: int, **kw
+    ) -> APF:
+        """PARSEC bodytrack's annealed filter (FORMAT.md §6.5) with ``pose_std`` = its ``PoseStd`` σ_0."""
+        kw.setdefault("resampling", "multinomial")
+        return cls(loglik_batch, pose_std, num_particles, Schedule.parsec(num_layers), **kw)
+
+    def init(self, key: jax.Array, mean: jnp.ndarray, std: jnp.ndarray | None = None) -> State:
+        """``num_particles`` particles ``mean + std ⊙ ε`` (``std`` defaults to Δ), uniform weights."""
+        std = self.diffusion_std if std is None else std
+        return base.init_state(key, self.num_particles, mean, std, self.lower, self.upper, self.limit_mode)
+
+    # -- one layer ---------------------------------------------------------------------------------------------
+
+    def _beta_hint(self, layer, beta_prev):
+        if self.schedule.kind == "fixed":
+            return jnp.asarray(self.schedule.betas, beta_prev.dtype)[layer]
+        return beta_prev
+
+    def _weigh(self, key, X, log_corr, observation, layer, beta_prev, surv_prev, previous_estimate):
+        """Weigh proposed particles ``X`` at ``layer``; returns ``(X, log_w, stats, recovered)``."""
+        ll = base.mask_loglik(
+            self.loglik_batch(X, observation, Layer(layer, self._beta_hint(layer, beta_prev)))
+        )
+        sol = annealing.choose_beta(self.schedule, ll, layer, beta_prev, surv_prev)
+        log_w, ok = base.normalise(
+            sol.beta * jnp.where(jnp.isfinite(ll), ll, 0.0) + jnp.where(jnp.isfinite(ll), log_corr, -jnp.inf)
+        )
+        stats = base.layer_stats(ll, log_w, sol.beta, sol.status)
+        X_rec = base.recover(
+            key,
+            X,
+            previous_estimate,
+            self.diffusion_std,
+            self.recovery_widen,
+            self.lower,
+            self.upper,
+            self.limit_mode,
+            self.recovery,
+        )
+        return jnp.where(ok, X, X_rec), log_w, stats, ~ok
+
+    def step(self, key: jax.Array, state: State, observation) -> tuple[State, Info]:
+        """One frame of ``L`` annealing layers. Returns the new state and :class:`Info` with ``(L,)`` layer stats."""
+        dtype = state.particles.dtype
+        scales = jnp.asarray(self.schedule.scales, dtype)
+        n = self.num_particles
+
+        def layer_fn(carry, inputs):
+            """A resample-diffuse-weigh layer (every layer of the APF; layers 1 … L-1 of the IAPF)."""
+            X, log_w, beta_prev, surv_prev, recovered, _ = carry
+            k, layer = inputs
+            k_sel, k_move, k_rec = jax.random.split(k, 3)
+            X = base.resample(self.resampling, k_sel, X, log_w, n)[0]
+            X = base.diffuse(
+                k_move, X, self.diffusion_std * scales[layer], self.lower, self.upper, self.limit_mode
+            )
+            X, log_w, stats, rec = self._weigh(
+                k_rec, X, jnp.zeros((n,), dtype), observation, layer, beta_prev, surv_prev, state.estimate
+            )
+            return (X, log_w, stats.beta, stats.survival_rate, recovered | rec, rec), stats
+
+        k_first, k_w0, k_layers = jax.random.split(key, 3)
+        zero, one = jnp.zeros((), dtype), jnp.ones((), dtype)
+        if self.first_layer == "icondensation":
+            # layer 0 of the IAPF: ICONDENSATION's importance function, with the dynamics diffusing by Δ · s_0
+            std0 = self.diffusion_std * scales[0]
+            center, valid = (self.proposal_center or icondensation.default_proposal_center)(observation)
+            det_std = std0 if self.detection_std is None else self.detection_std
+            X, log_corr = icondensation.importance_sample(
+                k_first,
+                state.particles,
+                state.log_weights,
+                n,
+                icondensation.counts(n, self.dynamics_fraction, self.detection_fraction),
+                std0,
+                jnp.asarray(center, dtype),
+                jnp.asarray(valid, bool),
+                det_std,
+                self.prior_mean,
+                self.prior_std,
+                scheme=self.resampling,
+                lower=self.lower,
+                upper=self.upper,
+                limit_mode=self.limit_mode,
+                weighting=self.weighting,
+            )
+            X, log_w, stats0, rec0 = self._weigh(
+                k_w0, X, log_corr, observation, jnp.int32(0), zero, one, state.estimate
+            )
+            carry = (X, log_w, stats0.beta, stats0.survival_rate, rec0, rec0)
+            first = 1
+        else:
+            # layer 0 of the APF resamples the previous frame's set: the same layer as the others
+            carry = (state.particles, state.log_weights, zero, one, jnp.zeros((), bool), jnp.zeros((), bool))
+            first = 0
+        layers = jnp.arange(first, self.num_layers, dtype=jnp.int32)
+        keys = jax.random.split(k_layers, self.num_layers)[first:]
+        (X, log_w, _, _, recovered, last_recovered), all_stats = jax.lax.scan(layer_fn, carry, (keys, layers))
+        if first:
+            all_stats = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), stats0, all_stats)
+
+        estimate = base.weighted_mean(X, log_w, self.circular)
+        # a recovery in the last layer leaves a re-initialised cloud: report the previous estimate
+        if self.recovery == "reinit":
+            estimate = jnp.where(last_recovered, state.estimate, estimate)
+        best = X[jnp.argmax(log_w)]
+        return State(X, log_w, estimate), Info(estimate, best, all_stats, recovered)
+
+
+base.register_filter(APF, ("diffusion_std", "lower", "upper", "prior_mean", "prior_std", "detection_std"))
