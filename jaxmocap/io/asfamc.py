@@ -198,7 +198,9 @@ def read_asf(path: str | os.PathLike) -> Skeleton:
                 order = tuple(p.upper() for p in parts[1:])
                 valid = {"TX", "TY", "TZ", "RX", "RY", "RZ"}
                 if not order or any(o not in valid for o in order) or len(set(order)) != len(order):
-                    raise err(f"root order {' '.join(parts[1:])!r} must list distinct TX TY TZ RX RY RZ", line)
+                    raise err(
+                        f"root order {' '.join(parts[1:])!r} must list distinct TX TY TZ RX RY RZ", line
+                    )
                 root_order = order
             elif key == "axis":
                 if len(parts) != 2:
@@ -441,7 +443,9 @@ def motion_from_asfamc(
         M = euler_to_matrix(conv * values[name][:, ::-1], order[::-1])
         rotations[:, j] = C @ M @ C.T
     leaves = [j for j in range(1, J) if not skeleton.children.get(names[j])]
-    end_offsets = np.array([skeleton.bones[names[j]].length * skeleton.bones[names[j]].direction for j in leaves])
+    end_offsets = np.array(
+        [skeleton.bones[names[j]].length * skeleton.bones[names[j]].direction for j in leaves]
+    )
     return build_motion(
         names,
         parents,

@@ -132,9 +132,9 @@ class _Tokens:
         return v
 
     def rest_of_line(self, line: int) -> str:
-        """Join the tokens that remain on ``line`` (a joint name may contain spaces)."""
+        """Join the tokens that remain on ``line`` up to a ``{`` (a joint name may contain spaces)."""
         parts = []
-        while self.pos < len(self.toks) and self.toks[self.pos][1] == line:
+        while self.pos < len(self.toks) and self.toks[self.pos][1] == line and self.toks[self.pos][0] != "{":
             parts.append(self.toks[self.pos][0])
             self.pos += 1
         return " ".join(parts)
@@ -276,7 +276,9 @@ def read_bvh(path: str | os.PathLike) -> BvhData:
             bad = next((p for p in parts if not _is_float(p)), parts[0])
             raise MocapInputError(path, f"frame {len(rows) + 1}: {bad!r} is not a number", k + 1) from None
         if not np.all(np.abs(row) <= MAX_ABS):  # also false for NaN
-            raise MocapInputError(path, f"frame {len(rows) + 1} has a non-finite or out-of-range value", k + 1)
+            raise MocapInputError(
+                path, f"frame {len(rows) + 1} has a non-finite or out-of-range value", k + 1
+            )
         rows.append(row)
     if len(rows) < num_frames and C > 0:
         raise MocapInputError(
@@ -480,7 +482,12 @@ def _write(path, data: BvhData, precision: int) -> None:
             emit(c, depth + 1)
         for off in ends[j]:
             out.extend(
-                [f"{ind}\tEnd Site", f"{ind}\t{{", f"{ind}\t\tOFFSET {' '.join(fmt(v) for v in off)}", f"{ind}\t}}"]
+                [
+                    f"{ind}\tEnd Site",
+                    f"{ind}\t{{",
+                    f"{ind}\t\tOFFSET {' '.join(fmt(v) for v in off)}",
+                    f"{ind}\t}}",
+                ]
             )
         out.append(f"{ind}}}")
 

@@ -19,27 +19,26 @@ permutation ``(x, y, z)_yup -> (z, x, y)_zup``, i.e. ``p_zup = A p_yup`` with
 face +z with their left side towards +x in the files, so after the conversion they face +x with their left
 towards +y: the rest orientation of the body presets in :mod:`jaxmocap.body`.
 
-Evaluation joints (:data:`jaxmocap.body.EVAL_JOINTS`) of a CMU skeleton, each defined on the bones:
+Evaluation joints (:data:`jaxmocap.body.EVAL_JOINTS`) of a CMU skeleton, each defined on the bones, with its
+joint in the CMU ASF / the 3ds Max-friendly cgspeed BVH / the MotionBuilder-friendly cgspeed BVH:
 
-====================  ==========================================  ===========  ==============  ==============
-evaluation joint      definition                                  CMU ASF      cgspeed BVH     cgspeed BVH
-                                                                               (3ds Max)       (MotionBuilder)
-====================  ==========================================  ===========  ==============  ==============
-root                  pelvis: the root                            root         Hips            Hips
-thorax                base of the neck: start of the lower neck   lowerneck    lowerneck       Neck
-head                  middle of the head bone                     head ↔ end   Head ↔ end      Head ↔ end
-left/right_shoulder   start of the humerus                        l/rhumerus   Left/RightShoulder  Left/RightArm
-left/right_elbow      start of the radius                         l/rradius    Left/RightElbow     Left/RightForeArm
-left/right_wrist      start of the wrist bone (end of radius)     l/rwrist     Left/RightWrist     Left/RightHand
-left/right_hip        start of the femur                          l/rfemur     Left/RightHip       Left/RightUpLeg
-left/right_knee       start of the tibia                          l/rtibia     Left/RightKnee      Left/RightLeg
-left/right_ankle      start of the foot                           l/rfoot      Left/RightAnkle     Left/RightFoot
-====================  ==========================================  ===========  ==============  ==============
+* root — the pelvis, the root: ``root`` / ``Hips`` / ``Hips``;
+* thorax — the base of the neck, start of the lower neck: ``lowerneck`` / ``lowerneck`` / ``Neck``;
+* head — the middle of the head bone, between the head joint and the end site of the head bone (the top of
+  the head): ``head`` / ``Head`` / ``Head``;
+* left/right shoulder — start of the humerus: ``l/rhumerus`` / ``Left/RightShoulder`` / ``Left/RightArm``;
+* left/right elbow — start of the radius: ``l/rradius`` / ``Left/RightElbow`` / ``Left/RightForeArm``;
+* left/right wrist — start of the wrist bone (end of the radius): ``l/rwrist`` / ``Left/RightWrist`` /
+  ``Left/RightHand``;
+* left/right hip — start of the femur: ``l/rfemur`` / ``Left/RightHip`` / ``Left/RightUpLeg``;
+* left/right knee — start of the tibia: ``l/rtibia`` / ``Left/RightKnee`` / ``Left/RightLeg``;
+* left/right ankle — start of the foot: ``l/rfoot`` / ``Left/RightAnkle`` / ``Left/RightFoot``.
 
-"start of bone b" is the position of the joint that rotates b (BVH joints and ASF bones are named after the
-bone they move). "head ↔ end" is the midpoint of the head joint and the end site of the head bone (the top of
-the head). The 3ds Max-friendly names are checked on the shipped CMU clips; the MotionBuilder-friendly ones
-follow the same conversion with the other naming and are accepted by name.
+"Start of bone b" is the position of the joint that rotates b (BVH joints and ASF bones are named after the
+bone they move). The ASF and 3ds Max-friendly names are checked on the shipped CMU clips; the
+MotionBuilder-friendly ones follow the same conversion with the other naming and are accepted by name.
+Note that the cgspeed BVH skeleton drops the ASF ``thorax`` bone: its ``lowerneck`` joint coincides with
+``Chest2``, the start of the ASF ``thorax`` bone.
 """
 
 from __future__ import annotations
