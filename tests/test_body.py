@@ -90,7 +90,9 @@ def test_body_file_round_trip_and_errors(tmp_path):
         body.load_body(bad)
     signed = tmp_path / "signed.toml"
     body.save_body(signed, "full25", {"shoulder_drop": -0.047})  # CMU shoulders sit above the neck base
-    np.testing.assert_allclose(np.asarray(body.load_body(signed).offset), np.asarray(body.full25({"shoulder_drop": -0.047}).offset))
+    np.testing.assert_allclose(
+        np.asarray(body.load_body(signed).offset), np.asarray(body.full25({"shoulder_drop": -0.047}).offset)
+    )
     bad.write_text("model = [\n")
     with pytest.raises(MocapInputError, match="not valid TOML"):
         body.load_body(bad)
