@@ -15,7 +15,9 @@ import jax.numpy as jnp
 def inside_image(uv: jnp.ndarray, height: int, width: int) -> jnp.ndarray:
     """``(..., 2) -> (...)`` bool: the nearest pixel centre of ``uv`` lies in the image."""
     u, v = uv[..., 0], uv[..., 1]
-    return (u > -0.5) & (u < width - 0.5) & (v > -0.5) & (v < height - 0.5) & jnp.isfinite(u) & jnp.isfinite(v)
+    return (
+        (u > -0.5) & (u < width - 0.5) & (v > -0.5) & (v < height - 0.5) & jnp.isfinite(u) & jnp.isfinite(v)
+    )
 
 
 def _flat_index(maps_shape, iu, iv):

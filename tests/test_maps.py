@@ -51,7 +51,9 @@ def test_bilinear_exact_at_pixel_centres_and_differentiable():
     np.testing.assert_allclose(np.asarray(vals[0]), M[0].ravel(), rtol=1e-6)
     with jax.enable_x64(True):
         M64 = jnp.asarray(M, jnp.float64)
-        check_grads(lambda p: maps.lookup_bilinear(M64, p)[0], (jnp.asarray([[[3.3, 4.6], [7.2, 1.9]]]),), order=1)
+        check_grads(
+            lambda p: maps.lookup_bilinear(M64, p)[0], (jnp.asarray([[[3.3, 4.6], [7.2, 1.9]]]),), order=1
+        )
 
 
 def test_non_finite_coordinates_are_outside_not_nan():
