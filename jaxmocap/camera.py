@@ -47,6 +47,7 @@ __all__ = [
     "world_to_camera",
     "project",
     "project_with_depth",
+    "project_per_view",
     "in_view",
     "camera_centres",
     "projection_matrices",
@@ -300,6 +301,29 @@ def project(rig: Rig, X) -> jnp.ndarray:
     See :func:`project_with_depth` for points behind a camera.
     """
     return project_with_depth(rig, X)[0]
+
+
+def project_per_view(rig: Rig, X) -> jnp.ndarray:
+    """Pixel coordinates of each view's own points through that view's camera only.
+
+    ``X (..., V, P, 3)`` (``X[..., v, :, :]`` seen by camera ``v``, e.g. occluding contours, which depend on the
+    viewpoint) → ``(..., V, P, 2)``; the same model as :func:`project_with_depth`, per coordinate.
+    """
+    X = _float_points(X)
+    dt = X.dtype
+    R = jnp.asarray(rig.R, dt)
+    t = jnp.asarray(rig.t, dt)
+    K = jnp.asarray(rig.K, dt)
+    dist = jnp.asarray(rig.dist, dt)
+    x, y, z = X[..., 0], X[..., 1], X[..., 2]
+    xc = _col(R[:, 0, 0]) * x + _col(R[:, 0, 1]) * y + _col(R[:, 0, 2]) * z + _col(t[:, 0])
+    yc = _col(R[:, 1, 0]) * x + _col(R[:, 1, 1]) * y + _col(R[:, 1, 2]) * z + _col(t[:, 1])
+    zc = _col(R[:, 2, 0]) * x + _col(R[:, 2, 1]) * y + _col(R[:, 2, 2]) * z + _col(t[:, 2])
+    inv_z = 1.0 / zc
+    ad, bd = _distort(dist, xc * inv_z, yc * inv_z)
+    u = _col(K[:, 0, 0]) * ad + _col(K[:, 0, 1]) * bd + _col(K[:, 0, 2])
+    v = _col(K[:, 1, 1]) * bd + _col(K[:, 1, 2])
+    return jnp.stack([u, v], -1)
 
 
 def in_view(rig: Rig, X, near: float = 1e-3) -> jnp.ndarray:

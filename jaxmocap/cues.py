@@ -1,29 +1,47 @@
 """Cue energies: one pure function per cue, of one particle's projected geometry and one frame's observation.
 
 Every cue returns an energy ``E ≥ 0`` — per view ``(V,)`` for image cues, a scalar for view-free cues (3D
-distances, priors) — and the likelihood composes them in Gibbs form ``p(z | x) ∝ exp(−Σ_c λ_c Σ_v w_v E_c,v)``
-(:mod:`jaxmocap.likelihood`). Most energies are normalised to [0, 1] so that Li & Kulić's weighting
-``w_c = A^(−d_c)`` (A = 100, their eq. 4) is the same form with ``λ_c = k_c ln A``.
+distances, priors) — and the likelihood composes them in Gibbs form ``p(z | x) ∝ exp(−Σ_c Σ_v λ_c,v k_c w_v E_c,v)``
+(:mod:`jaxmocap.likelihood`). The Gaussian cues of Fontmarty et al. (``p ∝ exp(−D²/2σ²)``) have ``E = D²/2σ²``;
+Li & Kulić's distances are rescaled to [0, 1] so that their weighting ``w_c = A^(−d_c)`` (A = 100, eq. 4) is the
+same form with ``λ_c = k_c ln A``.
 
 The geometry a cue reads (:class:`Geometry`) is computed once per particle for all cues; ``V`` views, ``P`` flesh
-surface points, ``C`` occluding-contour points, ``J`` evaluation joints.
+surface points, ``Q`` occluding-contour points, ``J`` evaluation joints. Work that depends on the observation only
+(masked depth, colour bins, the foreground samples of the divergence cue) is done once per call by the cue's
+``prepare`` step, not once per particle.
 
-Which cues are differentiable in the pose: ``edge_distance``, ``foreground`` and ``edges`` with ``bilinear=True``
-(they read maps by bilinear interpolation; the nearest-pixel default is piecewise constant), ``keypoints``,
-``blobs3d``, ``ground``, ``interpenetration``. Not differentiable (piecewise constant or set-valued):
-``edge_fraction``, ``depth`` (its foreground/occlusion switch), ``silhouette_divergence`` (inside/outside tests).
+Cues by source (name — definition):
+
+* Fontmarty et al., IROS 2007 §III-B: ``edge_distance`` (distance transform at the contour points),
+  ``colour_histogram`` (ROI colour histograms, Bhattacharyya distance), ``blobs3d`` (3D head/hand blobs),
+  ``skin`` (skin colour at the projected head and hands), ``homogeneous_colour`` (per-limb colour spread).
+* Li & Kulić §III-C: ``depth`` (eq. 1), ``edge_fraction`` (eq. 2), ``colour_template`` (eq. 3),
+  ``wristband`` and ``ground`` (distance cue); their product of weights (eq. 4) is the ``li-kulic`` schedule.
+* López Méndez 2009 §4.3, §6.4: ``foreground`` (eq. 4.3), ``head_skin`` (eq. 4.4), ``edges`` (eq. 4.5),
+  ``silhouette_divergence`` (eq. 4.6), ``interpenetration`` (eq. 6.2–6.3).
+* 2D detections: ``keypoints`` (OpenPose BODY_25 / BODY_25B with confidences).
+
+Image maps are read at the nearest pixel by default (one shared index per sample set: fast, piecewise constant in
+the pose). ``bilinear=True`` reads them by bilinear interpolation instead, which makes a cue differentiable;
+``colour_histogram`` needs ``soft=True`` as well (triangular-kernel binning). :data:`DIFFERENTIABLE` lists, per cue,
+``"yes"`` (always), ``"bilinear"`` / ``"soft"`` (with that parameter) or ``"no"``: ``edge_fraction`` (a count of
+thresholded pixels), ``depth`` (its foreground/occlusion switch) and ``silhouette_divergence`` (inside/outside
+tests) are piecewise constant in the pose and have no differentiable variant here.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmocap import flesh, maps
-from jaxmocap.observation import Observation, as_float
+from jaxmocap import camera, flesh, maps
+from jaxmocap.observation import Observation
 
 #: Li & Kulić's penalty for a sample point outside the foreground in the depth cue (eq. 1), metres.
 DEPTH_PENALTY_M = 2.8
@@ -34,8 +52,11 @@ class Geometry(NamedTuple):
 
     joints ``(J, 3)`` world evaluation joints; joints_uv ``(V, J, 2)``;
     surface ``(P, 3)`` world flesh points; surface_uv ``(V, P, 2)``; surface_depth ``(V, P)`` camera z;
-    surface_facing ``(V, P)`` bool: outward normal faces the camera;
-    contour_uv ``(V, C, 2)`` occluding-contour points of the cones seen from each camera;
+    surface_facing ``(V, P)`` bool: outward normal faces the camera (and the point is in front of it);
+    surface_index, surface_inside ``(V, P)``: nearest-pixel flat index into the ``(V, H, W)`` maps and the
+    in-image mask (:func:`jaxmocap.maps.nearest_index`), shared by every nearest-pixel surface cue;
+    contour_uv ``(V, Q, 2)`` occluding-contour points of the primitives seen from each camera;
+    contour_index, contour_inside ``(V, Q)`` likewise;
     primitives: :class:`jaxmocap.flesh.Primitives` in the world frame.
     """
 
@@ -45,25 +66,130 @@ class Geometry(NamedTuple):
     surface_uv: jnp.ndarray | None = None
     surface_depth: jnp.ndarray | None = None
     surface_facing: jnp.ndarray | None = None
+    surface_index: jnp.ndarray | None = None
+    surface_inside: jnp.ndarray | None = None
     contour_uv: jnp.ndarray | None = None
+    contour_index: jnp.ndarray | None = None
+    contour_inside: jnp.ndarray | None = None
     primitives: flesh.Primitives | None = None
 
 
 class CueContext(NamedTuple):
-    """Static facts a cue may need besides geometry and observation."""
+    """What a cue may read besides geometry and observation.
+
+    Static: ``joint_names``, ``params`` (the cue's parameters), ``rig``, ``model`` (the body model),
+    ``surface_segment`` (segment of each surface point). Per call: ``aux`` (the cue's ``prepare`` result) and
+    ``ref`` (the reference data the likelihood holds for this cue: colour histograms or templates of the first
+    frame, see :meth:`jaxmocap.likelihood.Likelihood.with_references`).
+    """
 
     joint_names: tuple[str, ...]
     params: dict
     rig: object
-
-
-def _lookup(obs_map, uv, bilinear: bool):
-    f = maps.lookup_bilinear if bilinear else maps.lookup_nearest
-    return f(obs_map, uv)
+    model: object = None
+    surface_segment: tuple[int, ...] = ()
+    aux: object = None
+    ref: object = None
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# Image cues (per view)
+# Helpers
+
+
+def _unit_scale(a: jnp.ndarray) -> float:
+    """Scale that maps a stored unit map to [0, 1] (``uint8`` maps store ``round(255·p)``)."""
+    return 1.0 / 255.0 if a.dtype == jnp.uint8 else 1.0
+
+
+def _surface_values(obs_map, g: Geometry, ctx: CueContext, unit: bool = True):
+    """``(values (V, P), inside (V, P))`` of a ``(V, H, W)`` map at the surface points (nearest or bilinear)."""
+    s = _unit_scale(obs_map) if unit else 1.0
+    if ctx.params.get("bilinear", False):
+        i00, fu, fv, inside = maps.bilinear_index(g.surface_uv, obs_map.shape)
+        return maps.gather_bilinear(obs_map, i00, fu, fv, s), inside
+    return maps.gather(obs_map, g.surface_index, s), g.surface_inside
+
+
+def _contour_values(obs_map, g: Geometry, ctx: CueContext, unit: bool = True):
+    s = _unit_scale(obs_map) if unit else 1.0
+    if ctx.params.get("bilinear", False):
+        i00, fu, fv, inside = maps.bilinear_index(g.contour_uv, obs_map.shape)
+        return maps.gather_bilinear(obs_map, i00, fu, fv, s), inside
+    return maps.gather(obs_map, g.contour_index, s), g.contour_inside
+
+
+def _segment_points(ctx: CueContext, segment: int) -> slice:
+    """The static slice of surface points on ``segment`` (points are stored segment by segment)."""
+    seg = np.asarray(ctx.surface_segment)
+    where = np.flatnonzero(seg == segment)
+    if where.size == 0:
+        raise ValueError(f"segment {ctx.model.segment_names[segment]!r} has no surface points")
+    return slice(int(where[0]), int(where[-1]) + 1)
+
+
+def _segment_ids(ctx: CueContext, names, default: str) -> tuple[int, ...]:
+    """Segment indices of ``names`` (or of the default set: ``"fleshed"`` = every segment with surface points,
+    ``"limbs"`` = those but the head)."""
+    segs = ctx.model.segment_names
+    have = sorted(set(ctx.surface_segment))
+    if names is None:
+        out = [s for s in have if not (default == "limbs" and segs[s] == "head")]
+    else:
+        unknown = [n for n in names if n not in segs]
+        if unknown:
+            raise ValueError(f"unknown segments {unknown}; the model has {segs}")
+        out = [segs.index(n) for n in names]
+    return tuple(out)
+
+
+def _joint_index(ctx: CueContext, names) -> np.ndarray:
+    missing = [j for j in names if j not in ctx.joint_names]
+    if missing:
+        raise ValueError(f"the model has no joints {missing}; it has {ctx.joint_names}")
+    return np.asarray([ctx.joint_names.index(j) for j in names])
+
+
+def _rgb_bytes(obs: Observation) -> jnp.ndarray:
+    """``(V, H, W, 3)`` int32 bytes ``round(255 c)`` of the colour map."""
+    c = obs.rgb
+    if c.dtype == jnp.uint8:
+        return c.astype(jnp.int32)
+    return jnp.round(jnp.clip(c.astype(jnp.float32), 0.0, 1.0) * 255.0).astype(jnp.int32)
+
+
+def _packed_rgb(obs: Observation, cache: dict) -> jnp.ndarray:
+    """``(V, H, W)`` int32 ``R + 256 G + 65536 B`` of the bytes ``round(255 c)`` (one gather reads a colour)."""
+    if "rgb_packed" not in cache:
+        c8 = _rgb_bytes(obs)
+        cache["rgb_packed"] = c8[..., 0] | (c8[..., 1] << 8) | (c8[..., 2] << 16)
+    return cache["rgb_packed"]
+
+
+def _unpack_rgb(p: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray, jnp.ndarray]:
+    """Packed colours ``(...)`` int32 → three float32 arrays R, G, B in [0, 1] (kept apart: per-channel arithmetic
+    over long arrays, no reduction over a minor axis of 3)."""
+    s = 1.0 / 255.0
+    return ((p & 255).astype(jnp.float32) * s, ((p >> 8) & 255).astype(jnp.float32) * s, (p >> 16).astype(jnp.float32) * s)
+
+
+def _surface_rgb(obs: Observation, g: Geometry, ctx: CueContext):
+    """``((R, G, B) each (V, P) in [0, 1], inside (V, P))`` at the surface points: nearest pixel from the packed
+    colour map of ``aux``, or bilinear from the colour planes of ``aux`` with ``bilinear=True``."""
+    if ctx.params.get("bilinear", False):
+        i00, fu, fv, inside = maps.bilinear_index(g.surface_uv, obs.rgb.shape[:3])
+        planes = ctx.aux["rgb_planes"]
+        s = _unit_scale(obs.rgb)
+        return tuple(maps.gather_bilinear(planes[c], i00, fu, fv, s) for c in range(3)), inside
+    return _unpack_rgb(maps.gather(ctx.aux["rgb_packed"], g.surface_index, raw=True)), g.surface_inside
+
+
+def _weighted_mean(values, w, axis=-1, empty=0.0):
+    s = jnp.sum(w, axis=axis)
+    return jnp.where(s > 0, jnp.sum(values * w, axis=axis) / jnp.maximum(s, 1e-12), empty)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Silhouette and edge cues (López Méndez; Fontmarty et al.; Li & Kulić)
 
 
 def foreground(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
@@ -71,96 +197,424 @@ def foreground(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
 
     ``E_v = (1/P) Σ_p (1 − F_v(u_vp))``; a sample outside the image counts as background.
     """
-    F, inside = _lookup(as_float(obs.foreground), g.surface_uv, ctx.params.get("bilinear", False))
-    miss = jnp.where(inside, 1.0 - F, 1.0)
-    return jnp.mean(miss, axis=-1)
+    F, inside = _surface_values(obs.foreground, g, ctx)
+    return jnp.mean(jnp.where(inside, 1.0 - F, 1.0), axis=-1)
 
 
 def edges(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
-    """Edge matching (López Méndez eq. 4.5): ``E_v = (1/C) Σ_c (1 − Ẽ_v(u_vc))`` on the occluding-contour points, with
-    ``Ẽ`` the dilated, smoothed edge map in [0, 1] (§4.2); out-of-image points count as 1."""
-    E, inside = _lookup(as_float(obs.edges), g.contour_uv, ctx.params.get("bilinear", False))
+    """Edge matching (López Méndez eq. 4.5): ``E_v = (1/Q) Σ_q (1 − Ẽ_v(u_vq))`` on the occluding-contour points,
+    with ``Ẽ`` the dilated, smoothed edge map in [0, 1] (§4.2); out-of-image points count as 1."""
+    E, inside = _contour_values(obs.edges, g, ctx)
     return jnp.mean(jnp.where(inside, 1.0 - E, 1.0), axis=-1)
 
 
 def edge_distance(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
-    """Edge distance (Fontmarty et al. §III-B): ``p ∝ exp(−D²/2σ_e²)`` with ``D`` the distance-transform value
-    ``I_DT`` at the contour points. Energy: ``E_v = (1/C) Σ_c min(I_DT(u_vc), d_max)² / (2 σ_e²)`` (σ_e and d_max in
-    pixels; out-of-image points take ``d_max``). Bilinear lookups: differentiable."""
+    """Edge distance (Fontmarty et al. §III-B): ``p ∝ exp(−D²/2σ_e²)`` with ``D = (1/Q) Σ_q I_DT(u_q)`` the mean
+    distance-transform value at the model's contour points, so ``E_v = D_v² / (2 σ_e²)``.
+
+    Each distance is capped at ``max_px`` (default 30; out-of-image points take it), so that one stray point
+    does not dominate; σ_e = ``sigma_px`` (default 6). Parameters in pixels.
+    """
     sigma = ctx.params.get("sigma_px", 6.0)
     dmax = ctx.params.get("max_px", 30.0)
-    D, inside = maps.lookup_bilinear(as_float(obs.edge_dt, unit=False), g.contour_uv)
-    D = jnp.where(inside, jnp.minimum(D, dmax), dmax)
-    return jnp.mean(D * D, axis=-1) / (2.0 * sigma * sigma)
+    D, inside = _contour_values(obs.edge_dt, g, ctx, unit=False)
+    D = jnp.mean(jnp.where(inside, jnp.minimum(D, dmax), dmax), axis=-1)
+    return D * D / (2.0 * sigma * sigma)
 
 
 def edge_fraction(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
     """Li & Kulić edge cue (eq. 2): the fraction of projected contour pixels that are not on the edge map
     (edge value below ``threshold``, default 0.5); out-of-image points count as off."""
-    E, inside = maps.lookup_nearest(as_float(obs.edges), g.contour_uv)
-    on = inside & (E >= ctx.params.get("threshold", 0.5))
+    E = maps.gather(obs.edges, g.contour_index, _unit_scale(obs.edges))
+    on = g.contour_inside & (E >= ctx.params.get("threshold", 0.5))
     return 1.0 - jnp.mean(on.astype(E.dtype), axis=-1)
+
+
+def _prepare_depth(obs: Observation, ctx: CueContext, cache: dict):
+    """Observed depth where the pixel is foreground (``F ≥ ½``; any measured pixel without a foreground map),
+    else 0: one map, so the cue reads one value per sample."""
+    D = obs.depth.astype(jnp.float32)
+    if obs.has("foreground"):
+        fg = obs.foreground.astype(jnp.float32) * _unit_scale(obs.foreground) >= 0.5
+        D = jnp.where(fg, D, 0.0)
+    return {"depth": D}
 
 
 def depth(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
     """Li & Kulić depth cue (eq. 1), rescaled to [0, 1].
 
-    For the camera-facing surface samples: ``d_p = |z_p − D(u_p)|`` where the observed pixel is foreground (and has
-    a depth), else the fixed penalty 2.8 m; ``E_v = min(mean_p d_p, 2.8) / 2.8``.
+    For the camera-facing surface samples: ``d_p = |z_p − D(u_p)|`` where the observed pixel is foreground and
+    has a depth, else the fixed penalty 2.8 m; ``E_v = min(mean_p d_p, 2.8) / 2.8``.
     """
-    Dm, inside = maps.lookup_nearest(as_float(obs.depth, unit=False), g.surface_uv)
-    if obs.has("foreground"):
-        F, _ = maps.lookup_nearest(as_float(obs.foreground), g.surface_uv)
-        fg = F >= 0.5
-    else:
-        fg = Dm > 0
-    ok = inside & fg & (Dm > 0)
+    Dm = maps.gather(ctx.aux["depth"], g.surface_index)
+    ok = g.surface_inside & (Dm > 0)
     d = jnp.where(ok, jnp.abs(g.surface_depth - Dm), DEPTH_PENALTY_M)
     w = g.surface_facing.astype(d.dtype)
     mean = jnp.sum(d * w, axis=-1) / jnp.maximum(jnp.sum(w, axis=-1), 1.0)
     return jnp.minimum(mean, DEPTH_PENALTY_M) / DEPTH_PENALTY_M
 
 
+def _prepare_divergence(obs: Observation, ctx: CueContext, cache: dict):
+    """Foreground samples of the divergence cue, once per frame: the foreground value at a ``grid`` (columns,
+    rows; default 80×60) of pixels, compacted to ``samples`` (default 256) slots per view — every foreground grid
+    pixel once when there are at most that many (unused slots weigh 0), otherwise every (count/samples)-th in
+    raster order (an evenly spread subsample) — with their weights and undistorted normalised camera coordinates."""
+    V, H, W = obs.foreground.shape
+    gc, gr = ctx.params.get("grid", (80, 60))
+    M = int(ctx.params.get("samples", 256))
+    us = np.floor((np.arange(gc) + 0.5) * (W / gc))  # pixel centres, evenly spread
+    vs = np.floor((np.arange(gr) + 0.5) * (H / gr))
+    grid = np.stack(np.meshgrid(us, vs), -1).reshape(-1, 2).astype(np.float32)
+    G = grid.shape[0]
+    uvg = jnp.broadcast_to(jnp.asarray(grid), (V, G, 2))
+    F, _ = maps.lookup_nearest(obs.foreground, uvg)
+    F = F * _unit_scale(obs.foreground)
+    fg = F > 0
+    count = jnp.cumsum(fg.astype(jnp.int32), axis=-1)  # (V, G)
+    total = count[:, -1]
+    j = jnp.arange(M)[None, :]
+    spread = jnp.floor((j + 0.5) * total[:, None].astype(jnp.float32) / M).astype(jnp.int32)
+    rank = jnp.where(total[:, None] <= M, j, spread)  # all of them, or an evenly spread subset
+    pick = jax.vmap(lambda c, r: jnp.searchsorted(c, r + 1, side="left"))(count, rank)  # the (rank+1)-th
+    pick = jnp.clip(pick, 0, G - 1)
+    w = jnp.take_along_axis(F, pick, axis=-1) * (rank < total[:, None])
+    uv = jnp.asarray(grid)[pick]  # (V, M, 2)
+    rig = ctx.rig
+    ab = camera.undistort_points(rig, jnp.moveaxis(uv, 0, 1).astype(jnp.float32))  # (M, V, 2)
+    ab = jnp.moveaxis(ab, 1, 0)
+    return {"x": ab[..., 0], "y": ab[..., 1], "w": w}
+
+
+def _silhouette_cover(prims: flesh.Primitives, R, t, x, y) -> jnp.ndarray:
+    """Whether normalised image points ``(x, y)`` (``(M,)``, camera ``R, t``) lie in the projected silhouette of
+    any primitive (exact for the flat-capped cones and the spheroids of :mod:`jaxmocap.flesh`).
+
+    A cone's image is the convex quadrilateral spanned by its two contour generators (their four end points, in
+    order, lie in one plane: the generators meet at the apex) united with the images of its two cap discs. A
+    pixel ray ``d = (x, y, 1)`` meets the cap disc (centre ``c``, unit normal ``â``, radius ``r``, camera frame)
+    iff ``s g > 0`` and ``s² |d|² − 2 s g (c·d) + g² (|c|² − r²) ≤ 0`` with ``s = â·c``, ``g = â·d`` (the ray hits
+    the cap plane at ``t = s/g``; ``|t d − c| ≤ r``). A spheroid ``m + M y, |y| ≤ 1`` is hit iff, with
+    ``e = M⁻¹ d`` and ``o = −M⁻¹ m``, ``(o·e)² − |e|² (|o|² − 1) ≥ 0`` and the far root is positive. Each test is a
+    handful of multiply-adds per pixel and primitive, all fused into one loop over the pixels.
+    """
+    ca = prims.cone_a @ R.T + t
+    cb = prims.cone_b @ R.T + t
+    dd = x * x + y * y + 1.0
+    cover = jnp.zeros(x.shape, bool)
+    if prims.num_cones:
+        g = flesh.cone_contours(ca, cb, prims.r_a, prims.r_b, jnp.zeros(3, ca.dtype), 2)  # (C, 2, 2, 3)
+        quad = jnp.stack([g[:, 0, 0], g[:, 0, 1], g[:, 1, 1], g[:, 1, 0]], 1)  # (C, 4, 3): a+, b+, b−, a−
+        front = jnp.all(quad[..., 2] > 1e-6, axis=-1)
+        z = jnp.where(quad[..., 2] > 1e-6, quad[..., 2], 1.0)
+        qx, qy = quad[..., 0] / z, quad[..., 1] / z  # (C, 4)
+        nx, ny = jnp.roll(qx, -1, axis=1), jnp.roll(qy, -1, axis=1)
+        A = -(ny - qy)
+        B = nx - qx
+        Cc = (ny - qy) * qx - (nx - qx) * qy
+        orient = jnp.sign(jnp.sum(qx * ny - nx * qy, axis=1))  # (C,)
+        A, B, Cc = A * orient[:, None], B * orient[:, None], Cc * orient[:, None]
+        ahat, _ = flesh.axis_length(ca, cb)
+        for c in range(prims.num_cones):
+            e = A[c, 0] * x + B[c, 0] * y + Cc[c, 0]
+            for k in range(1, 4):
+                e = jnp.minimum(e, A[c, k] * x + B[c, k] * y + Cc[c, k])
+            inside = (e >= 0) & front[c]
+            gd = ahat[c, 0] * x + ahat[c, 1] * y + ahat[c, 2]
+            for centre, r in ((ca[c], prims.r_a[c]), (cb[c], prims.r_b[c])):
+                s = jnp.dot(ahat[c], centre)
+                cd = centre[0] * x + centre[1] * y + centre[2]
+                f = s * s * dd - 2.0 * s * gd * cd + gd * gd * (jnp.dot(centre, centre) - r * r)
+                inside = inside | ((f <= 0) & (s * gd > 0))
+            cover = cover | inside
+    if prims.num_ellipsoids:
+        m = prims.ell_centre @ R.T + t
+        Mx = jnp.einsum("ij,ejk->eik", R, prims.ell_axes)  # columns: semi-axis vectors (orthogonal)
+        Minv = jnp.swapaxes(Mx, -1, -2) / jnp.sum(Mx * Mx, axis=-2)[..., :, None]
+        o = -jnp.einsum("eij,ej->ei", Minv, m)
+        for k in range(prims.num_ellipsoids):
+            e = [Minv[k, i, 0] * x + Minv[k, i, 1] * y + Minv[k, i, 2] for i in range(3)]
+            oe = o[k, 0] * e[0] + o[k, 1] * e[1] + o[k, 2] * e[2]
+            ee = e[0] * e[0] + e[1] * e[1] + e[2] * e[2]
+            oo = jnp.dot(o[k], o[k])
+            disc = oe * oe - ee * (oo - 1.0)
+            cover = cover | ((disc >= 0) & ((oe < 0) | (oo <= 1.0)))
+    return cover
+
+
 def silhouette_divergence(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
     """Foreground divergence (López Méndez eq. 4.6): the part of the observed silhouette the model does not occupy.
 
-    A static grid of pixel samples (``grid`` = (columns, rows), default 40×30) is weighted by the foreground map;
-    ``E_v = Σ_g F(g) (1 − inside_v(g)) / Σ_g F(g)`` with ``inside_v`` the projected-limb test of
-    :func:`jaxmocap.flesh.inside_projected` (pinhole; distortion ignored for this coverage test).
-    Together with :func:`foreground` (model on silhouette) it penalises both ways of disagreeing.
+    ``E_v = Σ_s F(s) (1 − inside_v(s)) / Σ_s F(s)`` over the foreground samples ``s`` of the prepare step (a
+    pixel grid, compacted), with ``inside_v`` the exact projected-silhouette test of the primitives (the samples are
+    undistorted first, so lens distortion is taken into account). 0 when the view has no foreground. Together with
+    :func:`foreground` (model on silhouette) it penalises both ways of disagreeing.
     """
-    V, H, W = obs.foreground.shape
-    gc, gr = ctx.params.get("grid", (40, 30))
-    us = (np.arange(gc) + 0.5) * (W / gc) - 0.5
-    vs = (np.arange(gr) + 0.5) * (H / gr) - 0.5
-    grid = np.stack(np.meshgrid(us, vs), -1).reshape(-1, 2).astype(np.float32)
-    uvg = jnp.broadcast_to(jnp.asarray(grid), (V,) + grid.shape)
-    F, _ = maps.lookup_nearest(as_float(obs.foreground), uvg)
-    rig = ctx.rig
-    K = jnp.asarray(rig.K, F.dtype)
-    R = jnp.asarray(rig.R, F.dtype)
-    t = jnp.asarray(rig.t, F.dtype)
+    a = ctx.aux
+    R = jnp.asarray(ctx.rig.R, a["x"].dtype)
+    t = jnp.asarray(ctx.rig.t, a["x"].dtype)
     out = []
-    for v in range(V):
-        ins = flesh.inside_projected(g.primitives, K[v], R[v], t[v], uvg[v])
-        out.append(jnp.sum(F[v] * (1.0 - ins.astype(F.dtype))) / jnp.maximum(jnp.sum(F[v]), 1.0))
+    for v in range(R.shape[0]):
+        cov = _silhouette_cover(g.primitives, R[v], t[v], a["x"][v], a["y"][v])
+        w = a["w"][v]
+        out.append(jnp.sum(jnp.where(cov, 0.0, w)) / jnp.maximum(jnp.sum(w), 1e-12))
     return jnp.stack(out)
 
 
+# ---------------------------------------------------------------------------------------------------------------
+# Colour and skin cues
+
+
+def head_skin(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
+    """Head with skin (López Méndez eq. 4.4): the fraction of the head's camera-facing surface samples that are not
+    skin, ``E_v = Σ_p f_vp (1 − S_v(u_vp)) / Σ_p f_vp`` (``f`` = facing; out-of-image samples count as not skin;
+    1 when no head sample faces the camera)."""
+    sl = _segment_points(ctx, ctx.model.segment_names.index(ctx.params.get("segment", "head")))
+    S, inside = _surface_values(obs.skin, g, ctx)
+    S = jnp.where(inside, S, 0.0)[:, sl]
+    f = g.surface_facing[:, sl].astype(S.dtype)
+    return _weighted_mean(1.0 - S, f, empty=1.0)
+
+
+def _hand_samples(g: Geometry, ctx: CueContext) -> jnp.ndarray:
+    """``(V, 2, K, 2)`` pixel samples on the two projected hands: the hand centre ``wrist + h (wrist − elbow)/|·|``
+    (``hand_offset`` h, default 0.08 m) and a ring of 6 points at 0.6 of the projected hand radius
+    ``f_x r / z`` (``hand_radius`` r, default 0.05 m)."""
+    h = ctx.params.get("hand_offset", 0.08)
+    r = ctx.params.get("hand_radius", 0.05)
+    jw = _joint_index(ctx, ("left_wrist", "right_wrist"))
+    je = _joint_index(ctx, ("left_elbow", "right_elbow"))
+    w, e = g.joints[jw], g.joints[je]
+    d = w - e
+    c = w + h * d / jnp.sqrt(jnp.sum(d * d, axis=-1, keepdims=True) + 1e-12)
+    uv, z = camera.project_with_depth(ctx.rig, c)  # (V, 2, 2), (V, 2)
+    K = jnp.asarray(ctx.rig.K, uv.dtype)
+    rad = 0.6 * K[:, 0, 0, None] * r / jnp.maximum(z, 1e-3)  # (V, 2)
+    ang = np.linspace(0.0, 2 * np.pi, 6, endpoint=False)
+    off = np.concatenate([np.zeros((1, 2)), np.stack([np.cos(ang), np.sin(ang)], -1)]).astype(np.float32)  # (7, 2)
+    return uv[:, :, None, :] + rad[:, :, None, None] * jnp.asarray(off, uv.dtype)
+
+
+def skin(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
+    """Skin colour at the projected head and hands (Fontmarty et al. §III-B): ``p ∝ exp(−Σ_k D_k² / 2σ_s²)`` with
+    ``D_k = 1 − S̄_k`` one minus the mean skin probability over the samples of part ``k`` (head: its camera-facing
+    surface samples; each hand: a disc of 7 samples around the projected hand centre, see
+    :func:`_hand_samples`); out-of-image samples count as not skin. ``E_v = Σ_k D_k² / (2σ_s²)``, σ_s =
+    ``sigma`` (default 0.5)."""
+    sigma = ctx.params.get("sigma", 0.5)
+    bil = ctx.params.get("bilinear", False)
+    sl = _segment_points(ctx, ctx.model.segment_names.index("head"))
+    S, inside = _surface_values(obs.skin, g, ctx)
+    S = jnp.where(inside, S, 0.0)[:, sl]
+    head = _weighted_mean(S, g.surface_facing[:, sl].astype(S.dtype), empty=0.0)  # (V,)
+    uvh = _hand_samples(g, ctx)
+    V = uvh.shape[0]
+    uvh = uvh.reshape(V, -1, 2)
+    if bil:
+        Sh, ins = maps.lookup_bilinear(obs.skin, uvh)
+        Sh = Sh * _unit_scale(obs.skin)
+    else:
+        idx, ins = maps.nearest_index(uvh, obs.skin.shape)
+        Sh = maps.gather(obs.skin, idx, _unit_scale(obs.skin))
+    hands = jnp.mean(jnp.where(ins, Sh, 0.0).reshape(V, 2, -1), axis=-1)  # (V, 2)
+    D = 1.0 - jnp.concatenate([head[:, None], hands], axis=-1)
+    return jnp.sum(D * D, axis=-1) / (2.0 * sigma * sigma)
+
+
+def _colour_bins(c8: jnp.ndarray, bins: int, space: str) -> jnp.ndarray:
+    """Bin index of colour bytes ``c8 (..., 3)`` (RGB, ``round(255 c)``) exactly as
+    :func:`jaxmocap.features.colour.roi_histograms` bins them: ``"rgb"``: ``(q_r b + q_g) b + q_b`` with
+    ``q = ⌊c8 b / 256⌋``; ``"rg"``: chromaticity ``r = R/(R+G+B)``, ``g = G/(R+G+B)`` binned to ``min(⌊r b⌋, b−1)``."""
+    if space == "rgb":
+        q = (c8 * bins) // 256
+        return (q[..., 0] * bins + q[..., 1]) * bins + q[..., 2]
+    if space == "rg":
+        f = c8.astype(jnp.float32)
+        s = jnp.sum(f, axis=-1)
+        s = jnp.where(s > 0, s, 1.0)
+        r = jnp.minimum(jnp.floor(f[..., 0] / s * bins), bins - 1).astype(jnp.int32)
+        gg = jnp.minimum(jnp.floor(f[..., 1] / s * bins), bins - 1).astype(jnp.int32)
+        return r * bins + gg
+    raise ValueError(f"colour space must be 'rgb' or 'rg', got {space!r}")
+
+
+def _num_bins(params: dict) -> int:
+    b = int(params.get("bins", 4))
+    return b**3 if params.get("space", "rgb") == "rgb" else b**2
+
+
+def _prepare_colour(obs: Observation, ctx: CueContext, cache: dict):
+    """The packed colour map (shared by the colour cues of a likelihood); with ``bilinear=True`` also the three
+    colour planes ``(V, H, W)``."""
+    out = {"rgb_packed": _packed_rgb(obs, cache)}
+    if ctx.params.get("bilinear", False):
+        if "rgb_planes" not in cache:
+            cache["rgb_planes"] = tuple(obs.rgb[..., c] for c in range(3))
+        out["rgb_planes"] = cache["rgb_planes"]
+    return out
+
+
+def _prepare_histogram(obs: Observation, ctx: CueContext, cache: dict):
+    """The colour maps of :func:`_prepare_colour` and the per-pixel colour bin map (``uint8`` up to 256 bins)."""
+    out = _prepare_colour(obs, ctx, cache)
+    bins, space = int(ctx.params.get("bins", 4)), ctx.params.get("space", "rgb")
+    key = f"bins_{space}_{bins}"
+    if key not in cache:
+        dtype = jnp.uint8 if _num_bins(ctx.params) <= 256 else jnp.int32
+        cache[key] = _colour_bins(_rgb_bytes(obs), bins, space).astype(dtype)
+    out["bins"] = cache[key]
+    return out
+
+
+def _soft_bin_weights(rgb, bins: int) -> jnp.ndarray:
+    """Triangular-kernel bin weights ``(..., bins³)`` of colours ``(R, G, B)`` (each ``(...)`` in [0, 1]): per channel
+    ``k_j(c) = max(0, 1 − |c b − (j + ½)|)`` (clamped at the outer bin centres, so the weights sum to 1), joint
+    weight the product over channels, in the bin order of :func:`_colour_bins`."""
+    centre = jnp.arange(bins, dtype=rgb[0].dtype) + 0.5
+    k = [jnp.maximum(1.0 - jnp.abs(jnp.clip(c * bins, 0.5, bins - 0.5)[..., None] - centre), 0.0) for c in rgb]
+    return (k[0][..., :, None, None] * k[1][..., None, :, None] * k[2][..., None, None, :]).reshape(
+        rgb[0].shape + (bins**3,)
+    )
+
+
+def colour_histogram(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
+    """ROI colour histograms (Fontmarty et al. §III-B): ``p ∝ exp(−Σ_r D_r² / 2σ_c²)`` with the Bhattacharyya
+    distance ``D_r = √(1 − Σ_b √(h_r,b(x) q_r,b))`` between the colour histogram ``h_r(x)`` of ROI ``r`` — the pixels
+    under the camera-facing surface samples of segment ``r`` (``rois``, default every fleshed segment) — and the
+    reference ``q_r`` of the first frame (:func:`jaxmocap.features.colour.roi_histograms` over the rendered ROI
+    masks; :meth:`~jaxmocap.likelihood.Likelihood.with_references`). ``E_v = Σ_r D_r² / (2σ_c²)``, σ_c = ``sigma``
+    (default 0.2). Binning: ``bins`` per channel (default 4) in ``space`` ``"rgb"`` (joint bins³) or ``"rg"``
+    (chromaticity, bins²). An ROI without any visible sample has ``D = 1``.
+
+    ``soft=True`` (``"rgb"`` only; with ``bilinear=True`` for a gradient): triangular-kernel binning
+    (:func:`_soft_bin_weights`) of bilinearly interpolated colours, the reference binned the same way, and
+    ``√(h q + ε) − √ε`` (ε = 1e-6) per bin, so that the energy is differentiable.
+    """
+    sigma = ctx.params.get("sigma", 0.2)
+    bins = int(ctx.params.get("bins", 4))
+    soft = ctx.params.get("soft", False)
+    B = _num_bins(ctx.params)
+    segs = _segment_ids(ctx, ctx.params.get("rois"), "fleshed")
+    if soft and ctx.params.get("space", "rgb") != "rgb":
+        raise ValueError("soft colour histograms need space='rgb'")
+    sqrt_ref = jnp.sqrt(ctx.ref)  # (V, R, B)
+    if soft:
+        rgb, inside = _surface_rgb(obs, g, ctx)
+        w = (g.surface_facing & inside).astype(rgb[0].dtype)
+        onehot = _soft_bin_weights(rgb, bins)  # (V, P, B)
+    else:
+        w = (g.surface_facing & g.surface_inside).astype(jnp.float32)
+        b = maps.gather(ctx.aux["bins"], g.surface_index, raw=True).astype(jnp.int32)  # (V, P)
+    total = 0.0
+    V = w.shape[0]
+    for r, s in enumerate(segs):
+        sl = _segment_points(ctx, s)
+        ws = w[:, sl]
+        n = jnp.sum(ws, axis=-1)  # (V,)
+        if soft:
+            h = jnp.sum(onehot[:, sl] * ws[..., None], axis=1)
+        else:  # scatter-add: cost independent of the number of bins
+            h = jnp.zeros((V, B), ws.dtype).at[jnp.arange(V)[:, None], b[:, sl]].add(ws)
+        h = h / jnp.maximum(n, 1e-12)[:, None]  # (V, B)
+        if soft:
+            bc = jnp.sum(jnp.sqrt(h * ctx.ref[:, r] + 1e-6), axis=-1) - B * 1e-3
+        else:
+            bc = jnp.sum(jnp.sqrt(h) * sqrt_ref[:, r], axis=-1)
+        d2 = jnp.where(n > 0, jnp.clip(1.0 - bc, 0.0, 1.0), 1.0)
+        total = total + d2
+    return total / (2.0 * sigma * sigma)
+
+
+def homogeneous_colour(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
+    """Homogeneous colour (Fontmarty et al. §III-B): limbs are uniformly coloured, so ``p ∝ exp(−D²/2σ_h²)`` with
+    ``D = (1/L) Σ_l σ_l`` the mean over the limbs (``segments``, default every fleshed segment but the head) of
+    the colour standard deviation ``σ_l = √((1/3) Σ_c Var_p c_p)`` of the RGB values (in [0, 1]) at the limb's
+    camera-facing in-image surface samples. ``E_v = D² / (2σ_h²)``, σ_h = ``sigma`` (default 0.1). A limb with
+    fewer than two visible samples is left out of the mean. Differentiable with ``bilinear=True``."""
+    sigma = ctx.params.get("sigma", 0.1)
+    rgb, inside = _surface_rgb(obs, g, ctx)
+    w = (g.surface_facing & inside).astype(rgb[0].dtype)
+    segs = _segment_ids(ctx, ctx.params.get("segments"), "limbs")
+    # all per-limb sums at once: (7, V, P) moments times the static (P, L) membership matrix
+    member = np.asarray(ctx.surface_segment)[:, None] == np.asarray(segs)[None, :]
+    mom = jnp.stack([w] + [w * c for c in rgb] + [w * c * c for c in rgb])
+    S = jnp.einsum("kvp,pl->kvl", mom, jnp.asarray(member, w.dtype), precision=jax.lax.Precision.HIGHEST)
+    n = S[0]
+    ns = jnp.maximum(n, 1e-12)
+    var = sum(S[4 + c] / ns - (S[1 + c] / ns) ** 2 for c in range(3))  # (V, L)
+    sd = jnp.sqrt(jnp.maximum(var, 0.0) / 3.0 + 1e-8)
+    D = _weighted_mean(sd, (n >= 2).astype(w.dtype), empty=0.0)
+    return D * D / (2.0 * sigma * sigma)
+
+
+def colour_template(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
+    """Li & Kulić colour cue (eq. 3): the RGB distance between each sample point's colour and its template, the
+    colour the same sample point had in the first frame (:meth:`~jaxmocap.likelihood.Likelihood.with_references`),
+    rescaled to [0, 1]: ``E_v = Σ_p m_vp ‖c_vp(x) − T_vp‖ / √3 / Σ_p m_vp`` over the samples that face camera
+    ``v`` now and had a template there (``m``); 1 when there are none. Differentiable with ``bilinear=True``."""
+    T, valid = ctx.ref  # (3, V, P), (V, P)
+    rgb, inside = _surface_rgb(obs, g, ctx)
+    m = (valid & g.surface_facing & inside).astype(rgb[0].dtype)
+    d2 = sum((rgb[c] - T[c]) ** 2 for c in range(3))
+    d = jnp.sqrt(d2 + 1e-12) * (1.0 / math.sqrt(3.0))
+    return _weighted_mean(d, m, empty=1.0)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# 2D keypoints
+
+#: OpenPose BODY_25 keypoint index of each model joint it has (joint centres only; the face points, neck,
+#: mid-hip and feet are left out: they do not coincide with a model joint).
+BODY_25_PAIRS: tuple[tuple[str, int], ...] = (
+    ("right_shoulder", 2),
+    ("right_elbow", 3),
+    ("right_wrist", 4),
+    ("left_shoulder", 5),
+    ("left_elbow", 6),
+    ("left_wrist", 7),
+    ("right_hip", 9),
+    ("right_knee", 10),
+    ("right_ankle", 11),
+    ("left_hip", 12),
+    ("left_knee", 13),
+    ("left_ankle", 14),
+)
+#: The same for OpenPose BODY_25B (:data:`jaxmocap.io.openpose.BODY_25B_KEYPOINTS`).
+BODY_25B_PAIRS: tuple[tuple[str, int], ...] = (
+    ("left_shoulder", 5),
+    ("right_shoulder", 6),
+    ("left_elbow", 7),
+    ("right_elbow", 8),
+    ("left_wrist", 9),
+    ("right_wrist", 10),
+    ("left_hip", 11),
+    ("right_hip", 12),
+    ("left_knee", 13),
+    ("right_knee", 14),
+    ("left_ankle", 15),
+    ("right_ankle", 16),
+)
+KEYPOINT_LAYOUTS = {"body25": BODY_25_PAIRS, "body25b": BODY_25B_PAIRS}
+
+
 def keypoints(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
-    """2D keypoint cue (beyond the three works): robust distance between projected model joints and detections.
+    """2D keypoint cue: robust distance between projected model joints and detections with confidences.
 
     ``E_v = Σ_k c_vk ρ(‖u_vj(k) − z_vk‖ / σ) / Σ_k c_vk`` with the Geman–McClure ``ρ(r) = r² / (1 + r²)`` (bounded,
-    so a wrong detection costs at most its confidence), σ in pixels (default 20), ``pairs`` = static tuple of
-    (model joint name, keypoint index) and detections ``obs.keypoints2d (V, K, 3)`` = (u, v, confidence).
+    so a wrong detection costs at most its confidence), σ in pixels (default 20); detections
+    ``obs.keypoints2d (V, K, 3)`` = (u, v, confidence), e.g. from :func:`jaxmocap.io.openpose.load_openpose_json`.
+    ``pairs``: static tuple of (model joint name, keypoint index), or ``layout`` = ``"body25"`` / ``"body25b"``
+    (:data:`KEYPOINT_LAYOUTS`; default ``"body25b"``), restricted to the model's joints.
     """
-    pairs = ctx.params["pairs"]
+    pairs = ctx.params.get("pairs")
+    if pairs is None:
+        pairs = tuple(p for p in KEYPOINT_LAYOUTS[ctx.params.get("layout", "body25b")] if p[0] in ctx.joint_names)
     sigma = ctx.params.get("sigma_px", 20.0)
-    jidx = np.asarray([ctx.joint_names.index(j) for j, _ in pairs])
+    jidx = _joint_index(ctx, [j for j, _ in pairs])
     kidx = np.asarray([k for _, k in pairs])
+    if kidx.max() >= obs.keypoints2d.shape[1]:
+        raise ValueError(f"keypoint index {int(kidx.max())} but the detections have {obs.keypoints2d.shape[1]}")
     det = obs.keypoints2d[:, kidx]  # (V, M, 3)
-    proj = g.joints_uv[:, jidx]  # (V, M, 2)
-    d = proj - det[..., :2]
+    d = g.joints_uv[:, jidx] - det[..., :2]
     r2 = jnp.sum(d * d, axis=-1) / (sigma * sigma)
     c = det[..., 2]
     return jnp.sum(c * r2 / (1.0 + r2), axis=-1) / jnp.maximum(jnp.sum(c, axis=-1), 1e-6)
@@ -176,12 +630,37 @@ def blobs3d(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
     metres (default 0.1)."""
     names = ctx.params.get("joints", ("head", "left_wrist", "right_wrist"))
     sigma = ctx.params.get("sigma_m", 0.1)
-    idx = np.asarray([ctx.joint_names.index(j) for j in names])
-    X = g.joints[idx]  # (M, 3)
+    X = g.joints[_joint_index(ctx, names)]  # (M, 3)
     d = obs.blobs3d[:, None, :] - X[None]  # (K, M, 3)
     d2 = jnp.min(jnp.sum(d * d, axis=-1), axis=-1)
     c = obs.blob_conf
     return jnp.sum(c * d2) / (2.0 * sigma * sigma) / jnp.maximum(jnp.sum(c), 1.0)
+
+
+def wristband(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
+    """Wrist-band blob distance (Li & Kulić distance cue), rescaled to [0, 1].
+
+    Each model wrist ``w`` is compared with the 3D band blobs ``obs.blobs3d`` (confidence ``c_k``): with ``slots``
+    (static ((joint, blob slot), …): labelled bands) its own slot, otherwise the nearest confident blob;
+    ``d_w = min(‖X_w − b‖, d_max) / d_max`` (``max_m`` d_max, default 0.5 m) and ``E = Σ_w c_w d_w / Σ_w c_w`` with
+    ``c_w`` the matched blob's confidence; 0 when no band is seen."""
+    dmax = ctx.params.get("max_m", 0.5)
+    slots = ctx.params.get("slots")
+    if slots is not None:
+        X = g.joints[_joint_index(ctx, [j for j, _ in slots])]
+        k = np.asarray([s for _, s in slots])
+        b, c = obs.blobs3d[k], obs.blob_conf[k]
+        dist = jnp.sqrt(jnp.sum((X - b) ** 2, axis=-1) + 1e-12)
+    else:
+        X = g.joints[_joint_index(ctx, ("left_wrist", "right_wrist"))]
+        dist_all = jnp.sqrt(jnp.sum((X[:, None] - obs.blobs3d[None]) ** 2, axis=-1) + 1e-12)  # (2, K)
+        dist_all = jnp.where(obs.blob_conf[None] > 0, dist_all, jnp.inf)
+        j = jnp.argmin(dist_all, axis=-1)
+        dist = jnp.take_along_axis(dist_all, j[:, None], axis=-1)[:, 0]
+        c = jnp.where(jnp.isfinite(dist), obs.blob_conf[j], 0.0)
+        dist = jnp.where(jnp.isfinite(dist), dist, dmax)
+    d = jnp.minimum(dist, dmax) / dmax
+    return jnp.sum(c * d) / jnp.maximum(jnp.sum(c), 1e-12)
 
 
 def ground(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
@@ -191,21 +670,42 @@ def ground(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
     ankle, which stands on the floor) and scale (default 0.05 m) are parameters; zero for feet above the floor.
     """
     names = [j for j in ("left_ankle", "right_ankle") if j in ctx.joint_names]
-    idx = np.asarray([ctx.joint_names.index(j) for j in names])
-    z = g.joints[idx, 2]
+    if not names:
+        return jnp.zeros((), g.joints.dtype)
+    z = g.joints[_joint_index(ctx, names), 2]
     floor = ctx.params.get("floor", 0.0) + ctx.params.get("clearance", 0.0)
     return jnp.sum(jnp.maximum(floor - z, 0.0)) / ctx.params.get("scale", 0.05)
+
+
+#: Default inter-penetration pairs (segment names); pairs whose segments the model lacks are skipped.
+INTERPENETRATION_PAIRS = (
+    ("left_forearm", "torso"),
+    ("right_forearm", "torso"),
+    ("left_forearm", "right_forearm"),
+    ("left_shin", "right_shin"),
+)
 
 
 def interpenetration(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
     """Inter-penetration prior (López Méndez eq. 6.2–6.3): limbs may not pass through each other.
 
-    For the static cone pairs ``pairs`` (default: each forearm against the torso and the other forearm, the shins
-    against each other), the closest distance ``d`` between the two cone axes is compared with the sum of the
-    largest radii: ``E = Σ max(0, r_i + r_j − d)² / s²`` (s = 0.02 m).
+    For the static cone pairs ``pairs`` (segment names, or cone indices in :func:`jaxmocap.flesh.cone_segments`
+    order; default :data:`INTERPENETRATION_PAIRS`), the closest distance ``d`` between the two cone axes is
+    compared with the sum of the largest radii: ``E = Σ max(0, r_i + r_j − d)² / s²`` (``scale`` s, 0.02 m).
     """
     prims = g.primitives
-    pairs = ctx.params["pairs"]
+    cones = flesh.cone_segments(ctx.model)
+    names = ctx.model.segment_names
+    pairs = []
+    for i, j in ctx.params.get("pairs", INTERPENETRATION_PAIRS):
+        if isinstance(i, str):
+            if i not in names or j not in names:
+                continue
+            si, sj = names.index(i), names.index(j)
+            if si not in cones or sj not in cones:
+                continue
+            i, j = cones.index(si), cones.index(sj)
+        pairs.append((int(i), int(j)))
     s = ctx.params.get("scale", 0.02)
     total = jnp.zeros((), prims.cone_a.dtype)
     for i, j in pairs:
@@ -231,30 +731,70 @@ def _segment_distance(p0, p1, q0, q1):
 # ---------------------------------------------------------------------------------------------------------------
 # Registry
 
-#: name → (function, per-view?, the geometry it needs)
-CUES: dict[str, tuple[Callable, bool, frozenset]] = {
-    "foreground": (foreground, True, frozenset({"surface"})),
-    "edges": (edges, True, frozenset({"contour"})),
-    "edge_distance": (edge_distance, True, frozenset({"contour"})),
-    "edge_fraction": (edge_fraction, True, frozenset({"contour"})),
-    "depth": (depth, True, frozenset({"surface"})),
-    "silhouette_divergence": (silhouette_divergence, True, frozenset({"primitives"})),
-    "keypoints": (keypoints, True, frozenset({"joints_uv"})),
-    "blobs3d": (blobs3d, False, frozenset({"joints"})),
-    "ground": (ground, False, frozenset({"joints"})),
-    "interpenetration": (interpenetration, False, frozenset({"primitives"})),
+
+class CueSpec(NamedTuple):
+    """A registered cue: ``energy(g, obs, ctx)``, whether it is per view, the geometry it needs (a function of its
+    parameters), the observation fields it reads, whether it is differentiable (``"yes"``, ``"bilinear"``,
+    ``"soft"`` = with ``soft=True`` and ``bilinear=True``, ``"no"``), an optional per-call
+    ``prepare(obs, ctx, cache)`` and an optional reference builder (see
+    :meth:`jaxmocap.likelihood.Likelihood.with_references`)."""
+
+    energy: Callable
+    per_view: bool
+    needs: Callable[[dict], frozenset]
+    requires: tuple[str, ...]
+    differentiable: str
+    prepare: Callable | None = None
+    reference: str | None = None
+
+
+def _surface_needs(p):
+    return frozenset({"surface"} if p.get("bilinear", False) else {"surface", "surface_index"})
+
+
+def _contour_needs(p):
+    return frozenset({"contour"} if p.get("bilinear", False) else {"contour", "contour_index"})
+
+
+def _fixed(*parts):
+    s = frozenset(parts)
+    return lambda p: s
+
+
+CUES: dict[str, CueSpec] = {
+    "foreground": CueSpec(foreground, True, _surface_needs, ("foreground",), "bilinear"),
+    "edges": CueSpec(edges, True, _contour_needs, ("edges",), "bilinear"),
+    "edge_distance": CueSpec(edge_distance, True, _contour_needs, ("edge_dt",), "bilinear"),
+    "edge_fraction": CueSpec(edge_fraction, True, _fixed("contour", "contour_index"), ("edges",), "no"),
+    "depth": CueSpec(depth, True, _fixed("surface", "surface_index", "facing"), ("depth",), "no", _prepare_depth),
+    "silhouette_divergence": CueSpec(
+        silhouette_divergence, True, _fixed("primitives"), ("foreground",), "no", _prepare_divergence
+    ),
+    "head_skin": CueSpec(head_skin, True, lambda p: _surface_needs(p) | {"facing"}, ("skin",), "bilinear"),
+    "skin": CueSpec(skin, True, lambda p: _surface_needs(p) | {"joints", "facing"}, ("skin",), "bilinear"),
+    "colour_histogram": CueSpec(
+        colour_histogram,
+        True,
+        _fixed("surface", "surface_index", "facing"),
+        ("rgb",),
+        "soft",
+        _prepare_histogram,
+        "histogram",
+    ),
+    "homogeneous_colour": CueSpec(
+        homogeneous_colour, True, _fixed("surface", "surface_index", "facing"), ("rgb",), "bilinear", _prepare_colour
+    ),
+    "colour_template": CueSpec(
+        colour_template, True, _fixed("surface", "surface_index", "facing"), ("rgb",), "bilinear", _prepare_colour, "template"
+    ),
+    "keypoints": CueSpec(keypoints, True, _fixed("joints", "joints_uv"), ("keypoints2d",), "yes"),
+    "blobs3d": CueSpec(blobs3d, False, _fixed("joints"), (), "yes"),
+    "wristband": CueSpec(wristband, False, _fixed("joints"), (), "yes"),
+    "ground": CueSpec(ground, False, _fixed("joints"), (), "yes"),
+    "interpenetration": CueSpec(interpenetration, False, _fixed("primitives"), (), "yes"),
 }
 
 #: Observation fields each cue reads (a clear error names the missing one).
-REQUIRES: dict[str, tuple[str, ...]] = {
-    "foreground": ("foreground",),
-    "edges": ("edges",),
-    "edge_distance": ("edge_dt",),
-    "edge_fraction": ("edges",),
-    "depth": ("depth",),
-    "silhouette_divergence": ("foreground",),
-    "keypoints": ("keypoints2d",),
-    "blobs3d": (),
-    "ground": (),
-    "interpenetration": (),
-}
+REQUIRES: dict[str, tuple[str, ...]] = {n: s.requires for n, s in CUES.items()}
+#: Differentiability of each cue in the pose (see the module docstring).
+DIFFERENTIABLE: dict[str, str] = {n: s.differentiable for n, s in CUES.items()}

@@ -1,44 +1,119 @@
 """Pixel lookups in image maps stacked by view, as the cues need them.
 
-Maps are ``(V, H, W)`` arrays (one per view); query points are pixel coordinates ``uv (V, P, 2)`` with ``u`` the
-column and ``v`` the row, pixel centres at integer coordinates (OpenCV convention). Every lookup clamps to the
-image and returns an explicit ``inside (V, P)`` mask, so that a cue can count out-of-image samples the way its
-definition requires. Written as one gather from the flattened maps: per particle under ``vmap`` this is the
-cheapest form on CPU.
+Maps are ``(V, H, W)`` arrays (one per view), or ``(V, H, W, C)`` for multi-channel maps; query points are pixel
+coordinates ``uv (..., V, P, 2)`` with ``u`` the column and ``v`` the row, pixel centres at integer coordinates
+(OpenCV convention). Every lookup clamps to the image and returns an explicit ``inside`` mask, so that a cue can
+count out-of-image samples the way its definition requires.
+
+The lookups are split in two so that several maps read at the same points share one index computation:
+
+* :func:`nearest_index` / :func:`bilinear_index` turn coordinates into flat indices into the flattened maps
+  (and the bilinear fractions); the result passes through ``lax.optimization_barrier`` so that XLA computes it
+  once instead of fusing (and recomputing) the rounding into every gather that reads it;
+* :func:`gather` / :func:`gather_bilinear` read a map at those indices, in the map's own dtype (``uint8`` maps
+  stay bytes until after the gather: fewer cache misses), as ``float32``.
+
+Nearest pixel: ``iu = ⌊u + ½⌋`` (ties round up), inside iff ``−½ < u < W − ½`` (and likewise for ``v``).
 """
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 
 
 def inside_image(uv: jnp.ndarray, height: int, width: int) -> jnp.ndarray:
-    """``(..., 2) -> (...)`` bool: the nearest pixel centre of ``uv`` lies in the image."""
+    """``(..., 2) -> (...)`` bool: the nearest pixel centre of ``uv`` lies in the image (False for NaN/inf)."""
     u, v = uv[..., 0], uv[..., 1]
-    return (
-        (u > -0.5) & (u < width - 0.5) & (v > -0.5) & (v < height - 0.5) & jnp.isfinite(u) & jnp.isfinite(v)
-    )
+    return (u > -0.5) & (u < width - 0.5) & (v > -0.5) & (v < height - 0.5)
 
 
-def _flat_index(maps_shape, iu, iv):
-    V, H, W = maps_shape
-    view = jnp.arange(V, dtype=jnp.int32).reshape((V,) + (1,) * (iu.ndim - 1))
-    return (view * H + iv) * W + iu
+def _view_offset(num_views: int, plane: int) -> jnp.ndarray:
+    """``(V, 1)`` start of each view's plane in the flattened maps (indices are ``(..., V, P)``)."""
+    return (jnp.arange(num_views, dtype=jnp.int32) * plane)[:, None]
+
+
+def _float_type(dtype):
+    """float32 for byte and half maps, else the map's own float type (float64 maps stay float64)."""
+    return dtype if dtype in (jnp.float32, jnp.float64) else jnp.float32
+
+
+def _finite(a: jnp.ndarray) -> jnp.ndarray:
+    return jnp.where(jnp.isfinite(a), a, 0.0)
+
+
+def nearest_index(uv: jnp.ndarray, shape: tuple[int, int, int]) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """Flat nearest-pixel indices of ``uv (..., V, P, 2)`` into maps of shape ``(V, H, W)``.
+
+    Returns ``(index (..., V, P) int32, inside (..., V, P) bool)``; out-of-image points index the clamped border
+    pixel (non-finite coordinates the pixel ``(0, 0)``).
+    """
+    V, H, W = shape[:3]
+    inside = inside_image(uv, H, W)
+    iu = jnp.clip(_finite(uv[..., 0]) + 0.5, 0.0, W - 0.5).astype(jnp.int32)
+    iv = jnp.clip(_finite(uv[..., 1]) + 0.5, 0.0, H - 0.5).astype(jnp.int32)
+    index = _view_offset(V, H * W) + iv * W + iu
+    return jax.lax.optimization_barrier((index, inside))
+
+
+def gather(maps: jnp.ndarray, index: jnp.ndarray, scale: float = 1.0, raw: bool = False) -> jnp.ndarray:
+    """``maps (V, H, W)`` at flat ``index`` → float values times ``scale`` (float32; float64 maps stay float64);
+    ``(V, H, W, C)`` maps give ``(..., C)``; ``raw=True`` returns the stored values unconverted. Indices must be
+    in range (as :func:`nearest_index` makes them)."""
+    V, H, W = maps.shape[:3]
+    if maps.ndim == 3:
+        vals = maps.reshape(-1).at[index].get(mode="promise_in_bounds")
+    else:
+        vals = maps.reshape(V * H * W, -1).at[index].get(mode="promise_in_bounds")
+    if raw:
+        return vals
+    vals = vals.astype(_float_type(maps.dtype))
+    return vals * scale if scale != 1.0 else vals
 
 
 def lookup_nearest(maps: jnp.ndarray, uv: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
     """Nearest-pixel values of ``maps (V, H, W)`` at ``uv (V, P, 2)``: ``(values (V, P), inside (V, P))``.
 
-    Out-of-image points read the clamped border pixel; use ``inside`` to mask them.
+    Out-of-image points read the clamped border pixel; use ``inside`` to mask them. Values keep the map's dtype
+    class: float maps give float32.
     """
-    V, H, W = maps.shape
+    index, inside = nearest_index(uv, maps.shape)
+    return gather(maps, index), inside
+
+
+def bilinear_index(
+    uv: jnp.ndarray, shape: tuple[int, int, int]
+) -> tuple[jnp.ndarray, jnp.ndarray, jnp.ndarray, jnp.ndarray]:
+    """Top-left flat index and fractions for bilinear interpolation at ``uv (..., V, P, 2)`` in ``(V, H, W)`` maps.
+
+    Coordinates are clamped to ``[0, W−1] × [0, H−1]``; returns ``(i00, fu, fv, inside)`` with the four
+    neighbours at ``i00, i00 + 1, i00 + W, i00 + W + 1``. ``fu``, ``fv`` carry the gradient in ``uv``.
+    """
+    V, H, W = shape[:3]
     inside = inside_image(uv, H, W)
-    u = jnp.where(jnp.isfinite(uv[..., 0]), uv[..., 0], 0.0)
-    v = jnp.where(jnp.isfinite(uv[..., 1]), uv[..., 1], 0.0)
-    iu = jnp.clip(jnp.round(u), 0, W - 1).astype(jnp.int32)
-    iv = jnp.clip(jnp.round(v), 0, H - 1).astype(jnp.int32)
-    values = jnp.take(maps.reshape(-1), _flat_index(maps.shape, iu, iv), mode="clip")
-    return values, inside
+    u = jnp.clip(_finite(uv[..., 0]), 0.0, W - 1.0)
+    v = jnp.clip(_finite(uv[..., 1]), 0.0, H - 1.0)
+    u0 = jnp.clip(jax.lax.stop_gradient(jnp.floor(u)), 0, max(W - 2, 0))
+    v0 = jnp.clip(jax.lax.stop_gradient(jnp.floor(v)), 0, max(H - 2, 0))
+    i00 = _view_offset(V, H * W) + v0.astype(jnp.int32) * W + u0.astype(jnp.int32)
+    i00, inside = jax.lax.optimization_barrier((i00, inside))
+    return i00, u - u0, v - v0, inside
+
+
+def gather_bilinear(
+    maps: jnp.ndarray, i00: jnp.ndarray, fu: jnp.ndarray, fv: jnp.ndarray, scale: float = 1.0
+) -> jnp.ndarray:
+    """Bilinear interpolation of ``maps (V, H, W)`` (or ``(V, H, W, C)``) at indices from :func:`bilinear_index`:
+    ``((1−fu)(1−fv) m₀₀ + fu(1−fv) m₀₁ + (1−fu) fv m₁₀ + fu fv m₁₁) · scale`` in float32."""
+    W = maps.shape[2]
+    a = gather(maps, i00)
+    b = gather(maps, i00 + 1)
+    c = gather(maps, i00 + W)
+    d = gather(maps, i00 + W + 1)
+    if maps.ndim == 4:
+        fu, fv = fu[..., None], fv[..., None]
+    out = (a + (b - a) * fu) * (1 - fv) + (c + (d - c) * fu) * fv
+    return out * scale if scale != 1.0 else out
 
 
 def lookup_bilinear(maps: jnp.ndarray, uv: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
@@ -46,19 +121,5 @@ def lookup_bilinear(maps: jnp.ndarray, uv: jnp.ndarray) -> tuple[jnp.ndarray, jn
 
     Coordinates are clamped to ``[0, W−1] × [0, H−1]`` before interpolation; returns ``(values, inside)``.
     """
-    V, H, W = maps.shape
-    inside = inside_image(uv, H, W)
-    u = jnp.clip(jnp.where(jnp.isfinite(uv[..., 0]), uv[..., 0], 0.0), 0.0, W - 1.0)
-    v = jnp.clip(jnp.where(jnp.isfinite(uv[..., 1]), uv[..., 1], 0.0), 0.0, H - 1.0)
-    u0 = jnp.clip(jnp.floor(u), 0, W - 2).astype(jnp.int32)
-    v0 = jnp.clip(jnp.floor(v), 0, H - 2).astype(jnp.int32)
-    fu = u - u0
-    fv = v - v0
-    flat = maps.reshape(-1).astype(jnp.result_type(maps.dtype, jnp.float32))
-    i00 = _flat_index(maps.shape, u0, v0)
-    a = jnp.take(flat, i00, mode="clip")
-    b = jnp.take(flat, i00 + 1, mode="clip")
-    c = jnp.take(flat, i00 + W, mode="clip")
-    d = jnp.take(flat, i00 + W + 1, mode="clip")
-    values = (a * (1 - fu) + b * fu) * (1 - fv) + (c * (1 - fu) + d * fu) * fv
-    return values, inside
+    i00, fu, fv, inside = bilinear_index(uv, maps.shape)
+    return gather_bilinear(maps, i00, fu, fv), inside

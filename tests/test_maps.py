@@ -19,13 +19,35 @@ def test_nearest_matches_numpy_and_counts_outside():
     V, H, W = M.shape
     uv = rng.uniform([-5, -5], [W + 5, H + 5], size=(V, 400, 2)).astype(np.float32)
     vals, inside = maps.lookup_nearest(jnp.asarray(M), jnp.asarray(uv))
-    iu = np.clip(np.round(uv[..., 0]), 0, W - 1).astype(int)
-    iv = np.clip(np.round(uv[..., 1]), 0, H - 1).astype(int)
+    # nearest pixel centre, ties rounding up: floor(u + 1/2)
+    iu = np.clip(np.floor(uv[..., 0] + 0.5), 0, W - 1).astype(int)
+    iv = np.clip(np.floor(uv[..., 1] + 0.5), 0, H - 1).astype(int)
     ref = np.stack([M[v][iv[v], iu[v]] for v in range(V)])
     np.testing.assert_array_equal(np.asarray(vals), ref)
-    ref_inside = (np.round(uv[..., 0]) >= 0) & (np.round(uv[..., 0]) <= W - 1)
-    ref_inside &= (np.round(uv[..., 1]) >= 0) & (np.round(uv[..., 1]) <= H - 1)
+    ref_inside = (np.floor(uv[..., 0] + 0.5) >= 0) & (np.floor(uv[..., 0] + 0.5) <= W - 1)
+    ref_inside &= (np.floor(uv[..., 1] + 0.5) >= 0) & (np.floor(uv[..., 1] + 0.5) <= H - 1)
     np.testing.assert_array_equal(np.asarray(inside), ref_inside)
+
+
+def test_shared_index_reads_every_dtype_and_channels():
+    """One index serves several maps: bytes stay exact, float16 converts, (V, H, W, C) maps give channels, and
+    batched queries (a leading particle axis) index the right view."""
+    rng = np.random.default_rng(3)
+    V, H, W = 2, 11, 13
+    M8 = rng.integers(0, 256, size=(V, H, W)).astype(np.uint8)
+    M3 = rng.uniform(size=(V, H, W, 3)).astype(np.float32)
+    uv = rng.uniform([-0.4, -0.4], [W - 0.6, H - 0.6], size=(5, V, 17, 2)).astype(np.float32)
+    idx, inside = maps.nearest_index(jnp.asarray(uv), (V, H, W))
+    assert bool(jnp.all(inside))
+    iu = np.floor(uv[..., 0] + 0.5).astype(int)
+    iv = np.floor(uv[..., 1] + 0.5).astype(int)
+    view = np.arange(V)[None, :, None]
+    np.testing.assert_array_equal(np.asarray(maps.gather(jnp.asarray(M8), idx, raw=True)), M8[view, iv, iu])
+    np.testing.assert_allclose(np.asarray(maps.gather(jnp.asarray(M8), idx, 1 / 255)), M8[view, iv, iu] / 255, rtol=1e-6)
+    np.testing.assert_allclose(
+        np.asarray(maps.gather(jnp.asarray(M8.astype(np.float16)), idx)), M8[view, iv, iu].astype(np.float32)
+    )
+    np.testing.assert_array_equal(np.asarray(maps.gather(jnp.asarray(M3), idx)), M3[view, iv, iu])
 
 
 def test_bilinear_matches_cv2_remap():
@@ -51,9 +73,7 @@ def test_bilinear_exact_at_pixel_centres_and_differentiable():
     np.testing.assert_allclose(np.asarray(vals[0]), M[0].ravel(), rtol=1e-6)
     with jax.enable_x64(True):
         M64 = jnp.asarray(M, jnp.float64)
-        check_grads(
-            lambda p: maps.lookup_bilinear(M64, p)[0], (jnp.asarray([[[3.3, 4.6], [7.2, 1.9]]]),), order=1
-        )
+        check_grads(lambda p: maps.lookup_bilinear(M64, p)[0], (jnp.asarray([[[3.3, 4.6], [7.2, 1.9]]]),), order=1)
 
 
 def test_non_finite_coordinates_are_outside_not_nan():
