@@ -14,6 +14,7 @@ Bad input prints one line naming the file (and line) and exits with status 2, ne
 from __future__ import annotations
 
 import argparse
+import pathlib
 import sys
 
 import numpy as np
@@ -88,6 +89,329 @@ def _synth(args) -> int:
     return 0
 
 
+# ---------------------------------------------------------------------------------------------------------------
+# track / eval / demo
+
+
+def _print_summary(summary: dict, out) -> None:
+    s = summary
+    fps = s.get("frames_per_s")
+    first = s.get("first_frame_s")
+    line = f"tracked {s['frames_tracked']} of {s['frames_requested']} frames ({s['frames_skipped']} skipped) in {s['wall_s']:.1f} s"
+    if fps:
+        line += f": {fps:.2f} frames/s after a first frame (with compilation) of {first:.1f} s"
+    print(line)
+    cues = ", ".join(n if w == 1 else f"{n}:{w:g}" for n, w in s["cues"])
+    print(
+        f"model {s['model']}, filter {s['filter']}, {s['particles']} particles x {s['layers']} layer(s), cues {cues}"
+    )
+    print(f"track lost in {s['lost_frames']} frame(s), {s['reinitialisations']} re-initialisation(s)")
+    if s.get("mean_error_mm") is not None:
+        print(f"mean joint error against the ground truth: {s['mean_error_mm']:.1f} mm")
+    files = ["poses.npz", "poses.csv", "diagnostics.json", "track.bvh"]
+    files += [pathlib.Path(p).name for p in s.get("overlays", [])]
+    print(f"wrote {', '.join(files)} to {out}")
+
+
+def _track_options(args):
+    from jaxmocap import tracker
+
+    return tracker.TrackOptions(
+        model=args.model,
+        body=args.body,
+        filter=args.filter,
+        particles=args.particles,
+        layers=args.layers,
+        cues=args.cues,
+        seed=args.seed,
+        frames=args.frames,
+        init=args.init,
+        foreground=args.foreground,
+        downsample=args.downsample,
+        on_bad_frame=args.on_bad_frame,
+        overlay=args.overlay,
+        resume=args.resume,
+        overwrite=args.overwrite,
+    )
+
+
+def _open_source(args):
+    from jaxmocap import tracker
+
+    if (args.input is None) == (args.videos is None):
+        raise ValueError("give either a sequence folder (INPUT) or --videos V1 V2 ... with --calibration")
+    if args.videos is not None:
+        if args.calibration is None:
+            raise ValueError("--videos needs --calibration FILE")
+        return tracker.VideoSource(args.videos, args.calibration, args.keypoints, args.depth)
+    if args.keypoints or args.depth or args.calibration:
+        raise ValueError(
+            "--calibration, --keypoints and --depth go with --videos (a sequence folder has its own)"
+        )
+    return tracker.SequenceSource(args.input)
+
+
+def _silence_opencv() -> None:
+    """OpenCV's own log lines (e.g. about a corrupt PNG chunk) would clutter the one-line error messages."""
+    import cv2
+
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+
+
+def _track(args) -> int:
+    from jaxmocap import tracker
+
+    _silence_opencv()
+
+    try:
+        options = _track_options(args)
+        source = _open_source(args)
+        try:
+            run = tracker.Tracker(source, args.out, options, quiet=args.quiet)
+            summary = run.run()
+        finally:
+            source.close()
+    except KeyboardInterrupt:
+        print(
+            f"\njaxmocap: interrupted; the frames tracked so far are in {args.out} (--resume continues)",
+            file=sys.stderr,
+        )
+        return 130
+    except MocapInputError:
+        raise
+    except ValueError as e:  # a bad option value
+        print(f"jaxmocap: error: {e}", file=sys.stderr)
+        return 2
+    if not args.quiet:
+        _print_summary(summary, args.out)
+    return 0
+
+
+def evaluate_runs(pred: list, gt: str, out: str | None = None, quiet: bool = False):
+    """Evaluate tracking output folders against a sequence's ground truth; write JSON and plots when ``out``."""
+    from jaxmocap import metrics, viz
+
+    gt_frames, gt_joints = metrics.load_groundtruth(gt)
+    runs = [metrics.load_prediction(p) for p in pred]
+    try:
+        report = metrics.evaluate(runs, gt_joints, gt_frames, run_names=[str(p) for p in pred])
+    except ValueError as e:
+        raise MocapInputError(pred[0], str(e)) from None
+    if out is not None:
+        out = pathlib.Path(out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        report.save(out)
+        stem = out.with_suffix("")
+        viz.plot_error_over_time(report, f"{stem}_error_over_time.png")
+        viz.plot_per_joint(report, f"{stem}_per_joint.png")
+    return report
+
+
+def _eval(args) -> int:
+    from jaxmocap import metrics
+
+    report = evaluate_runs([args.pred, *(args.runs or [])], args.gt, args.out)
+    print(
+        metrics.format_table(
+            report, f"3D joint error (mm) of {report['num_runs']} run(s) over {report['num_frames']} frames"
+        )
+    )
+    stem = pathlib.Path(args.out).with_suffix("")
+    print(f"wrote {args.out}, {stem}_error_over_time.png, {stem}_per_joint.png")
+    return 0
+
+
+DEMO_FRAMES = "0:240"
+DEMO_SIZE = "320x240"
+
+
+def _demo(args) -> int:
+    import shutil
+    import time
+
+    import cv2
+
+    from jaxmocap import metrics, synth, tracker, viz
+
+    _silence_opencv()
+    t0 = time.monotonic()
+    out = pathlib.Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    seq_dir, track_dir = out / "sequence", out / "track"
+    print(f"motion: {synth.demo_clip()[0].name} (CMU subject 2, trial 1: a walk). {synth.CMU_LICENCE}")
+    print(f"1/4 synthesising a stereo sequence ({args.size}) of source frames {args.frames} ...", flush=True)
+    seq = synth.synthesize(
+        "demo", seq_dir, rig="stereo", frames=args.frames, size=args.size, seed=args.seed, overwrite=True
+    )
+    t1 = time.monotonic()
+    print(f"    {seq.num_frames} frames x {len(seq.views)} views in {t1 - t0:.1f} s", flush=True)
+    print(f"2/4 tracking with {args.filter} ...", flush=True)
+    options = tracker.TrackOptions(
+        filter=args.filter,
+        particles=args.particles,
+        layers=args.layers,
+        seed=args.seed,
+        init="groundtruth",
+        overlay=True,
+        overwrite=True,
+    )
+    source = tracker.SequenceSource(seq_dir)
+    if track_dir.exists():
+        shutil.rmtree(track_dir)
+    run = tracker.Tracker(source, track_dir, options, quiet=args.quiet)
+    summary = run.run()
+    t2 = time.monotonic()
+    print("3/4 evaluating ...", flush=True)
+    report = evaluate_runs([track_dir], seq_dir, out / "eval.json")
+    print("4/4 overlay frame ...", flush=True)
+    mid = len(run.frames) // 2
+    poses = metrics.load_prediction(track_dir)
+    state = dict(zip(poses[0].tolist(), np.load(track_dir / "poses.npz")["state"], strict=True))[
+        run.frames[mid]
+    ]
+    fd = source.read(run.frames[mid], masks=False)
+    truth = seq.groundtruth.joints[run.frames[mid]]
+    views = viz.overlay_image(fd.images, run.model, source.rig.to_jax(), state, truth)
+    crops = viz.person_crops(views, source.rig.to_jax(), truth)  # the subject, enlarged, in both views
+    cv2.imwrite(
+        str(out / "demo_overlay.png"), np.concatenate(crops, axis=1), [cv2.IMWRITE_PNG_COMPRESSION, 9]
+    )
+    total = time.monotonic() - t0
+    cues = ", ".join(n if w == 1 else f"{n}:{w:g}" for n, w in summary["cues"])
+    head = [
+        "jaxmocap demo: CMU 02_01 (walk), synthetic stereo, " + f"{seq.num_frames} frames at {args.size}",
+        f"model {summary['model']}, filter {summary['filter']}, {summary['particles']} particles x "
+        f"{summary['layers']} layers, cues {cues}, init from ground truth",
+        f"tracking {t2 - t1:.1f} s ({summary['frames_per_s']:.2f} frames/s after the first frame), total {total:.1f} s",
+        "",
+    ]
+    table = "\n".join(head) + metrics.format_table(report)
+    (out / "demo_table.txt").write_text(table + "\n")
+    print()
+    print(table)
+    print()
+    print(
+        f"wrote {out / 'demo_table.txt'}, {out / 'demo_overlay.png'}, {out / 'eval.json'} (+ plots), {track_dir}/ (poses, BVH, overlay videos)"
+    )
+    return 0
+
+
+# the choices of jaxmocap.tracker (MODELS, FILTERS, FOREGROUNDS), repeated so that building the parser does not
+# import JAX; tests/test_cli_track.py checks that they agree
+_MODELS = ("upper9", "upper14", "full25", "parsec31")
+_FILTERS = (
+    "sir",
+    "icondensation",
+    "apf",
+    "iapf",
+    "partitioned",
+    "hierarchical",
+    "fbapf",
+    "fbapf2",
+    "fbapf3",
+    "m-apf",
+)
+_FOREGROUNDS = ("auto", "mask", "median", "mog2", "none")
+
+
+def _add_tracking_commands(sub) -> None:
+    tr = sub.add_parser(
+        "track",
+        help="track a person in a sequence folder or synchronised videos",
+        description="Track a sequence folder (synthesis format) or synchronised videos with their calibration; "
+        "writes poses.npz, poses.csv, diagnostics.json and track.bvh to --out after every frame.",
+    )
+    tr.add_argument("input", nargs="?", help="sequence folder (or use --videos)")
+    tr.add_argument("--out", required=True, help="output folder")
+    tr.add_argument("--videos", nargs="+", metavar="V", help="one synchronised video per camera")
+    tr.add_argument(
+        "--calibration", help="calibration of the videos (any format `jaxmocap calib show` reads)"
+    )
+    tr.add_argument(
+        "--keypoints", nargs="+", metavar="DIR", help="OpenPose JSON folder per camera (with --videos)"
+    )
+    tr.add_argument(
+        "--depth", nargs="+", metavar="DIR", help="depth-map folder per camera: .npy metres or 16-bit PNG mm"
+    )
+    tr.add_argument("--model", choices=_MODELS, help="body model (default: the body file's, else full25)")
+    tr.add_argument("--filter", choices=_FILTERS, default="apf", help="particle filter (default apf)")
+    tr.add_argument("--particles", type=int, help="particles (per layer for the annealed filters)")
+    tr.add_argument("--layers", type=int, help="annealing layers (default 5; 2 per level for hierarchical)")
+    tr.add_argument(
+        "--cues", help="comma-separated cues with optional weights, e.g. foreground,edge_distance:2,coverage"
+    )
+    tr.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    tr.add_argument("--frames", help="frame range A:B (default: all)")
+    tr.add_argument(
+        "--init",
+        default="auto",
+        help="groundtruth, ik or a FILE (.npz with 'state', .npy, text); default: groundtruth if the input has it, else ik",
+    )
+    tr.add_argument("--body", help="body file (TOML) with the subject's dimensions")
+    tr.add_argument(
+        "--foreground",
+        choices=_FOREGROUNDS,
+        default="auto",
+        help="foreground source (default: masks of a sequence, else a median background)",
+    )
+    tr.add_argument(
+        "--downsample", type=int, choices=(1, 2, 4), default=1, help="process images at 1/1, 1/2 or 1/4 size"
+    )
+    tr.add_argument(
+        "--on-bad-frame",
+        choices=("skip", "stop"),
+        default="skip",
+        help="a frame that does not decode: skip it with a warning (default) or stop",
+    )
+    tr.add_argument(
+        "--overlay",
+        action="store_true",
+        help="also write an MP4 per view with the model drawn over the images",
+    )
+    tr.add_argument("--resume", action="store_true", help="continue an interrupted run in --out")
+    tr.add_argument("--overwrite", action="store_true", help="replace a previous run in --out")
+    tr.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    tr.set_defaults(func=_track)
+
+    ev = sub.add_parser(
+        "eval",
+        help="3D joint errors of tracking runs against ground truth",
+        description="Li & Kulic's average error per frame, joint average error and overall average error, and "
+        "Lopez Mendez' eq. 7.1-7.3, in mm, over one or several runs; JSON plus plots.",
+    )
+    ev.add_argument("--pred", required=True, help="tracking output folder (or its poses.npz)")
+    ev.add_argument("--gt", required=True, help="sequence folder with groundtruth.npz (or the file)")
+    ev.add_argument(
+        "--runs", nargs="+", metavar="DIR", help="further runs of the same sequence (other seeds)"
+    )
+    ev.add_argument(
+        "--out",
+        required=True,
+        help="JSON report; plots go next to it (<stem>_error_over_time.png, <stem>_per_joint.png)",
+    )
+    ev.set_defaults(func=_eval)
+
+    de = sub.add_parser(
+        "demo",
+        help="synthesise, track and evaluate the bundled CMU walk (a few minutes on a laptop CPU)",
+        description="Synthesise a stereo sequence of the CMU clip bundled with the package, track it, evaluate "
+        "it, print a table and write the overlay video, an overlay frame and plots.",
+    )
+    de.add_argument("--out", default="jaxmocap-demo", help="output folder (default ./jaxmocap-demo)")
+    de.add_argument(
+        "--frames",
+        default=DEMO_FRAMES,
+        help=f"source frame range of the 120 fps clip (default {DEMO_FRAMES})",
+    )
+    de.add_argument("--size", default=DEMO_SIZE, help=f"image size (default {DEMO_SIZE})")
+    de.add_argument("--filter", choices=_FILTERS, default="apf", help="particle filter (default apf)")
+    de.add_argument("--particles", type=int, help="particles per layer (default 300)")
+    de.add_argument("--layers", type=int, help="annealing layers (default 5)")
+    de.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    de.add_argument("--quiet", action="store_true", help="no progress bar")
+    de.set_defaults(func=_demo)
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="jaxmocap", description="Markerless motion capture with particle filters in JAX."
@@ -131,6 +455,7 @@ def build_parser() -> argparse.ArgumentParser:
     syn.add_argument("--quiet", action="store_true", help="no progress output")
     syn.add_argument("--out", required=True, help="output sequence folder")
     syn.set_defaults(func=_synth)
+    _add_tracking_commands(sub)
     return p
 
 
