@@ -1,0 +1,355 @@
+"""Track the Pose2Sim 4-camera demo recording (a real person balancing on one leg) with ``full25`` and compare with
+Pose2Sim's triangulated ``.trc`` reference.
+
+Pipeline: videos + Pose2Sim calibration (:class:`jaxmocap.io.pose2sim.Pose2SimSource`, images resized by
+``--scale``), subject dimensions from the triangulated OpenPose BODY_25B detections
+(:func:`jaxmocap.io.pose2sim.body_dimensions`), IK initialisation from the triangulated detections, then the APF of
+:class:`jaxmocap.tracker.Tracker` with the cues ``foreground`` (static background: per-pixel median of frames with
+the subject's box left out, filled from the scene image of ``calibration/extrinsics``), ``edge_distance``,
+``coverage`` and ``keypoints`` (detections of every view).
+
+Reported, over the tracked frames: per-joint and mean 3D distance (mm) to the ``.trc`` reference for every camera
+set; the 2D distance (px, full-size images) of the tracked joints and of the reference's own markers to the
+detections (confidence > 0.3) of each camera. Usage::
+
+    .venv/bin/python benchmarks/pose2sim_track.py --out /tmp/p2s           # 4 cameras and the nearest pair
+    .venv/bin/python benchmarks/pose2sim_track.py --make-test-data tests/data/pose2sim_small
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pathlib
+import shutil
+import sys
+import time
+
+import cv2
+import jax.numpy as jnp
+import numpy as np
+
+from jaxmocap import camera
+from jaxmocap.body import EVAL_JOINTS
+from jaxmocap.io.pose2sim import KEYPOINT_OF_TRC, Pose2SimSource, body_dimensions, reference_joints
+from jaxmocap.tracker import KEYPOINT_OF, Tracker, TrackOptions
+
+DATA = pathlib.Path(os.environ.get("JAXMOCAP_DATA", "/work/shared/data")) / "video" / "pose2sim_demo"
+DERIVED = "derived_by_pose2sim_a948c20"
+TRC = f"{DERIVED}/pose-3d/S00_P00_T01_BalancingTrial_0-100.trc"
+CALIB = "calibration/Calib_qualisys_converted_by_pose2sim_a948c20.toml"
+CUES = "foreground,edge_distance,coverage:4,keypoints:4"
+RESULTS = pathlib.Path(__file__).resolve().parent / "results"
+
+
+def paths(root: pathlib.Path, images: bool = False) -> dict:
+    cams = [f"cam0{c}" for c in range(1, 5)]
+    kp = root / DERIVED / "pose" if (root / DERIVED).is_dir() else root / "pose"
+    out = {
+        "calibration": root / CALIB if (root / CALIB).is_file() else root / "calibration.toml",
+        "keypoints": [kp / f"{c}_json" for c in cams],
+        "extrinsics": [root / "calibration" / "extrinsics" / f"{c}_ext.png" for c in cams],
+        "trc": root / TRC if (root / TRC).is_file() else root / "reference.trc",
+    }
+    if images:
+        out["images"] = [root / "images" / c for c in cams]
+        out["backgrounds"] = [root / "background" / f"{c}.jpg" for c in cams]
+    else:
+        out["videos"] = [root / "videos" / f"{c}.mp4" for c in cams]
+    return out
+
+
+def write_body(path: pathlib.Path, dims: dict) -> None:
+    lines = ['model = "full25"', "", "[dimensions]"] + [f"{k} = {v:.4f}" for k, v in sorted(dims.items())]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def neighbouring_pair(rig: camera.Rig, centre: np.ndarray) -> tuple[int, int]:
+    """The two cameras whose viewing directions towards ``centre`` are closest in angle."""
+    c = np.asarray(camera.camera_centres(rig.to_jax(jnp.float32)), np.float64)
+    d = centre[None] - c
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    best, pair = -2.0, (0, 1)
+    for i in range(len(c)):
+        for j in range(i + 1, len(c)):
+            if d[i] @ d[j] > best:
+                best, pair = float(d[i] @ d[j]), (i, j)
+    return pair
+
+
+def reprojection(rig_full: camera.Rig, points: np.ndarray, kp_full: np.ndarray, pairs) -> np.ndarray:
+    """Per-camera mean distance (px) between projected ``points (T, P, 3)`` and detections ``kp_full (T, V, 25, 3)``
+    of keypoints ``pairs`` (index into P, keypoint index), confidence > 0.3."""
+    rj = rig_full.to_jax(jnp.float32)
+    V = kp_full.shape[1]
+    errs = [[] for _ in range(V)]
+    for t in range(points.shape[0]):
+        P = np.nan_to_num(points[t])
+        uv = np.asarray(camera.project(rj, jnp.asarray(P, jnp.float32)), np.float64)  # (V, P, 2)
+        for v in range(V):
+            for p, k in pairs:
+                if kp_full[t, v, k, 2] > 0.3 and np.all(np.isfinite(points[t, p])):
+                    errs[v].append(np.linalg.norm(uv[v, p] - kp_full[t, v, k, :2]))
+    return np.asarray([np.mean(e) if e else np.nan for e in errs])
+
+
+def track(
+    root: pathlib.Path,
+    out: pathlib.Path,
+    cameras,
+    scale: float,
+    frames: list[int],
+    particles: int,
+    layers: int,
+    seed: int,
+    images: bool = False,
+    cues: str = CUES,
+) -> dict:
+    """One tracking run; returns the numbers (and writes the run to ``out``)."""
+    p = paths(root, images)
+    src = Pose2SimSource(
+        p["calibration"],
+        p["keypoints"],
+        videos=p.get("videos"),
+        image_dirs=p.get("images"),
+        cameras=cameras,
+        scale=scale,
+        frames=frames,
+    )
+    try:
+        if images:
+            bgs = [cv2.imread(os.fspath(p["backgrounds"][c]), cv2.IMREAD_COLOR) for c in src.cameras]
+        else:
+            bgs = src.background(p["extrinsics"])
+        dims = body_dimensions(src.keypoints_full, src.full_rig)
+        out.mkdir(parents=True, exist_ok=True)
+        write_body(out / "body.toml", dims)
+        opts = TrackOptions(
+            model="full25",
+            body=os.fspath(out / "body.toml"),
+            filter="apf",
+            particles=particles,
+            layers=layers,
+            cues=cues,
+            seed=seed,
+            init="ik",
+            foreground="median",
+            overwrite=True,
+        )
+        t0 = time.monotonic()
+        tr = Tracker(src, out / "run", opts, quiet=True)
+        tr.features.extractor.set_background(bgs)
+        tr.run()
+        wall = time.monotonic() - t0
+        res = np.load(out / "run" / "poses.npz")
+        idx = [src.frame_numbers.index(int(f)) for f in res["frame_index"]]
+        pred = np.asarray(res["joints"], np.float64)
+        ref, markers, _ = reference_joints(p["trc"])
+        ref = ref[[src.frame_numbers[i] for i in idx]] if ref.shape[0] > max(src.frame_numbers) else ref[idx]
+        err = np.linalg.norm(pred - ref, axis=-1) * 1000.0  # (T, 15) mm
+        kp_full = src.keypoints_full[idx]
+        pairs = [(EVAL_JOINTS.index(j), k) for j, k in KEYPOINT_OF.items()]
+        track_px = reprojection(src.full_rig, pred, kp_full, pairs)
+        names = list(KEYPOINT_OF_TRC)
+        mk = np.stack([markers[n] for n in names], axis=1)
+        mk = mk[[src.frame_numbers[i] for i in idx]] if mk.shape[0] > max(src.frame_numbers) else mk[idx]
+        ref_px = reprojection(
+            src.full_rig,
+            mk,
+            kp_full,
+            [(i, KEYPOINT_OF_TRC[n]) for i, n in enumerate(names) if n not in ("Nose", "Head")],
+        )
+        mid = len(idx) // 2
+        shown = (src.read(idx[mid]).images, src.rig, src.keypoints[idx[mid]], np.asarray(res["state"][mid]))
+        return {
+            "cameras": [src.view_names[v] for v in range(len(src.cameras))],
+            "frames": [int(src.frame_numbers[i]) for i in idx],
+            "mean_mm": float(np.nanmean(err)),
+            "mean_mm_no_head": float(np.nanmean(np.delete(err, EVAL_JOINTS.index("head"), axis=1))),
+            "median_mm": float(np.nanmedian(err)),
+            "per_joint_mm": {j: float(np.nanmean(err[:, i])) for i, j in enumerate(EVAL_JOINTS)},
+            "per_frame_mm": [float(v) for v in np.nanmean(err, axis=1)],
+            "track_reprojection_px": [float(v) for v in track_px],
+            "reference_reprojection_px": [float(v) for v in ref_px],
+            "body": dims,
+            "seconds": wall,
+            "seconds_per_frame": wall / max(len(idx), 1),
+            "state_last": np.asarray(res["state"][-1]).tolist(),
+            "_shown": shown,
+            "_model": tr.model,
+        }
+    finally:
+        src.close()
+
+
+def save_overlay(res: dict, path: pathlib.Path) -> None:
+    """The tracked model (and the detections, white dots) on the middle tracked frame of every camera."""
+    from jaxmocap import viz
+
+    images, rig, kps, x = res["_shown"]
+    ims = viz.overlay_image(images, res["_model"], rig, x)
+    for im, kp in zip(ims, kps, strict=True):
+        for u, w, c in kp:
+            if c > 0.3:
+                cv2.circle(im, (int(round(u)), int(round(w))), 2, (255, 255, 255), -1)
+    cv2.imwrite(os.fspath(path), np.hstack(ims), [cv2.IMWRITE_PNG_COMPRESSION, 9])
+
+
+def table(results: list[dict]) -> str:
+    head = "| joint | " + " | ".join("+".join(r["cameras"]) for r in results) + " |"
+    lines = [head, "|---" * (len(results) + 1) + "|"]
+    for j in EVAL_JOINTS:
+        lines.append(f"| {j} | " + " | ".join(f"{r['per_joint_mm'][j]:.0f}" for r in results) + " |")
+    lines.append("| **mean** | " + " | ".join(f"**{r['mean_mm']:.1f}**" for r in results) + " |")
+    lines.append("| mean without head | " + " | ".join(f"{r['mean_mm_no_head']:.1f}" for r in results) + " |")
+    lines.append("| median | " + " | ".join(f"{r['median_mm']:.1f}" for r in results) + " |")
+    return "\n".join(lines)
+
+
+def make_test_data(dest: pathlib.Path, frames: list[int], scale: float) -> None:
+    """Copy a few frames of the recording at ``scale`` (JPEG), the backgrounds, the calibration, the detections
+    of those frames, the reference and the licence into ``dest``."""
+    p = paths(DATA)
+    src = Pose2SimSource(p["calibration"], p["keypoints"], videos=p["videos"], scale=scale)
+    bgs = src.background(p["extrinsics"])
+    dest.mkdir(parents=True, exist_ok=True)
+    (dest / "calibration").mkdir(exist_ok=True)
+    shutil.copy(p["calibration"], dest / "calibration.toml")
+    (dest / "background").mkdir(exist_ok=True)
+    for v in range(len(src.view_names)):
+        cam = f"cam0{v + 1}"
+        cv2.imwrite(os.fspath(dest / "background" / f"{cam}.jpg"), bgs[v], [cv2.IMWRITE_JPEG_QUALITY, 90])
+        (dest / "images" / cam).mkdir(parents=True, exist_ok=True)
+        (dest / "pose" / f"{cam}_json").mkdir(parents=True, exist_ok=True)
+        for f in frames:
+            fd = src.read(f)
+            cv2.imwrite(
+                os.fspath(dest / "images" / cam / f"{f:04d}.jpg"),
+                fd.images[v],
+                [cv2.IMWRITE_JPEG_QUALITY, 90],
+            )
+            name_json = f"{cam}.{f:04d}.json"
+            shutil.copy(p["keypoints"][v] / name_json, dest / "pose" / f"{cam}_json" / name_json)
+    src.close()
+    # the reference: header and the rows of the chosen frames (frame numbers kept)
+    lines = p["trc"].read_text().splitlines()
+    head, rows = lines[:5], [r for r in lines[5:] if r.strip()]
+    keep = [rows[f] for f in frames]
+    head[2] = head[2].split("\t")
+    head[2][2] = str(len(keep))
+    head[2] = "\t".join(head[2])
+    (dest / "reference.trc").write_text("\n".join(head + keep) + "\n")
+    shutil.copy(DATA / "LICENSE.pose2sim", dest / "LICENSE.pose2sim")
+    (dest / "PROVENANCE.md").write_text(
+        "# Provenance\n\n"
+        "A few frames of the Pose2Sim demo trial (perfanalytics/pose2sim, BSD-3-Clause, see LICENSE.pose2sim):\n"
+        "videos `Pose2Sim/Demo_SinglePerson/videos/camNN.mp4` at HEAD f7b39c747b361ce2cef2304bd7d42dddd15b3d36;\n"
+        "OpenPose BODY_25B detections (`pose/camNN_json`), the triangulated reference (`pose-3d/"
+        "S00_P00_T01_BalancingTrial_0-100.trc`) and the calibration (`S00_Calibration/Calib_qualisys.toml`) at\n"
+        "commit a948c205cfe4ea5c22d6941929e8efaba591a59d (S00_P00_T01_BalancingTrial).\n\n"
+        f"Made by `benchmarks/pose2sim_track.py --make-test-data`: frames {frames} of every camera resized by {scale}\n"
+        "(cam01/cam02 padded on the right from 1080 to the calibrated 1088 px first), JPEG quality 90;\n"
+        "`background/` (JPEG quality 90) = per-pixel median of 15 frames without the subject's box, filled from\n"
+        "`calibration/extrinsics/camNN_ext.png`; the detection JSONs and calibration copied unmodified;\n"
+        "`reference.trc` = the header and the rows of these frames (NumFrames changed accordingly).\n"
+    )
+    shutil.rmtree(dest / "calibration")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", default="/tmp/pose2sim_track", help="working folder of the runs")
+    ap.add_argument("--scale", type=float, default=0.25, help="image scale (default 1/4)")
+    ap.add_argument("--frames", default="0:100", help="frames A:B (default 0:100)")
+    ap.add_argument("--particles", type=int, default=300)
+    ap.add_argument("--layers", type=int, default=5)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--cues", default=CUES, help=f"cues and weights (default {CUES})")
+    ap.add_argument("--pair-only", action="store_true", help="only the 2-camera run")
+    ap.add_argument("--no-pair", action="store_true", help="only the 4-camera run")
+    ap.add_argument("--report", action="store_true", help=f"write {RESULTS}/pose2sim.md and the overlay")
+    ap.add_argument("--make-test-data", metavar="DIR", help="write the small test copy and exit")
+    a = ap.parse_args(argv)
+    if a.make_test_data:
+        make_test_data(pathlib.Path(a.make_test_data), [0, 1, 2, 3], 0.125)
+        return 0
+    f0, f1 = (int(v) for v in a.frames.split(":"))
+    frames = list(range(f0, f1))
+    out = pathlib.Path(a.out)
+    p = paths(DATA)
+    ref, _, _ = reference_joints(p["trc"])
+    pair = neighbouring_pair(camera.load_calibration(p["calibration"]), np.nanmean(ref[:, 0], axis=0))
+    sets = []
+    if not a.pair_only:
+        sets.append((0, 1, 2, 3))
+    if not a.no_pair:
+        sets.append(pair)
+    results = []
+    for cams in sets:
+        r = track(
+            DATA,
+            out / ("cams" + "".join(str(c + 1) for c in cams)),
+            cams,
+            a.scale,
+            frames,
+            a.particles,
+            a.layers,
+            a.seed,
+            cues=a.cues,
+        )
+        results.append(r)
+        print(
+            f"cameras {'+'.join(r['cameras'])}: mean {r['mean_mm']:.1f} mm (without head {r['mean_mm_no_head']:.1f}), "
+            f"reprojection tracked {np.round(r['track_reprojection_px'], 1)} px vs reference "
+            f"{np.round(r['reference_reprojection_px'], 1)} px, {r['seconds_per_frame']:.2f} s/frame",
+            flush=True,
+        )
+    keep = [{k: v for k, v in r.items() if not k.startswith("_")} for r in results]
+    (out / "pose2sim.json").write_text(json.dumps(keep, indent=1))
+    print(table(results))
+    if a.report:
+        RESULTS.mkdir(exist_ok=True)
+        save_overlay(results[0], RESULTS / "pose2sim_overlay.png")
+        cmd = "JAX_PLATFORMS=cpu .venv/bin/python benchmarks/pose2sim_track.py " + " ".join(
+            x for x in (sys.argv[1:] if argv is None else argv)
+        )
+        rows = []
+        for r in results:
+            rows.append(
+                f"| {'+'.join(r['cameras'])} | "
+                + " | ".join(
+                    f"{t:.1f} / {q:.1f}"
+                    for t, q in zip(r["track_reprojection_px"], r["reference_reprojection_px"], strict=True)
+                )
+                + " |"
+            )
+        text = (
+            "# Pose2Sim demo recording: tracked with full25, compared with Pose2Sim's triangulation\n\n"
+            f"Reproduce: `{cmd}`\n\n"
+            f"Frames {frames[0]}–{frames[-1]} (60 fps), images at scale {a.scale}, APF {a.particles} particles × "
+            f"{a.layers} layers, seed {a.seed}, cues `{a.cues}`, body dimensions from the triangulated detections, "
+            "IK initialisation from the triangulated detections of the first frame.\n\n"
+            "## 3D distance to the `.trc` reference (mm, mean over frames)\n\n"
+            + table(results)
+            + "\n\n## 2D distance to the OpenPose detections (px, full 1088×1920 images, confidence > 0.3)\n\n"
+            "tracked model / the reference's own markers, per camera\n\n"
+            + "| cameras | "
+            + " | ".join(f"cam {i + 1}" for i in range(len(results[0]["cameras"])))
+            + " |\n"
+            + "|---" * (len(results[0]["cameras"]) + 1)
+            + "|\n"
+            + "\n".join(rows)
+            + "\n\n"
+            + "\n".join(
+                f"- {'+'.join(r['cameras'])}: {r['seconds_per_frame']:.2f} s/frame (CPU, incl. features)"
+                for r in results
+            )
+            + "\n"
+        )
+        (RESULTS / "pose2sim.md").write_text(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
