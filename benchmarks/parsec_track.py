@@ -24,11 +24,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmocap import annealing, parsec
 from jaxmocap import body as body_mod
-from jaxmocap import parsec_likelihood as pl
+from jaxmocap import parsec
+from jaxmocap import parsec_track as ptrack
 from jaxmocap.filters import APF
-from jaxmocap.filters.base import State
 
 DATA = pathlib.Path(os.environ.get("JAXMOCAP_DATA", "/work/shared/data")) / "parsec"
 RESULTS = pathlib.Path(__file__).resolve().parent / "results"
@@ -36,30 +35,15 @@ CONFIGS = ((4000, 5), (1000, 3))
 BODYTRACK_S = {(4000, 5): 0.284, (1000, 3): 0.062}
 
 
-def make_loglik(seq):
-    raw = pl.make_loglik_batch(seq.shape, seq.cameras)
-
-    def loglik(X, obs, layer=None):
-        ll = raw(X, obs)
-        return jnp.where(ll <= -1e9, -jnp.inf, ll)  # bodytrack drops invalid poses (−1e10)
-
-    return loglik
-
-
 def make_runner(seq, num_particles: int, num_layers: int):
     """``run(obs, seed) -> (estimates (F, 31), per-frame step seconds)``, compiled once per configuration."""
     std = jnp.asarray(seq.pose_std, jnp.float32)
-    loglik = make_loglik(seq)
+    loglik = ptrack.make_loglik(seq.shape, seq.cameras)  # bodytrack drops invalid poses (−1e10)
     filt = APF.parsec(loglik, std, num_particles, num_layers)
 
     @jax.jit
     def start(k, o):
-        s = filt.init(k, jnp.asarray(seq.initial_pose, jnp.float32), std)
-        ll = loglik(s.particles, o)
-        b = annealing.parsec_beta(ll).beta
-        top = jnp.max(jnp.where(jnp.isfinite(ll), ll, -jnp.inf))
-        lw = jnp.where(jnp.isfinite(ll), b * (ll - top), -jnp.inf)
-        return State(s.particles, lw - jax.scipy.special.logsumexp(lw), s.estimate)
+        return ptrack.weighted_start(filt, loglik, k, jnp.asarray(seq.initial_pose, jnp.float32), std, o)
 
     step = jax.jit(filt.step)
 
