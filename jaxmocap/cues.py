@@ -169,7 +169,11 @@ def _unpack_rgb(p: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray, jnp.ndarray]:
     """Packed colours ``(...)`` int32 → three float32 arrays R, G, B in [0, 1] (kept apart: per-channel arithmetic
     over long arrays, no reduction over a minor axis of 3)."""
     s = 1.0 / 255.0
-    return ((p & 255).astype(jnp.float32) * s, ((p >> 8) & 255).astype(jnp.float32) * s, (p >> 16).astype(jnp.float32) * s)
+    return (
+        (p & 255).astype(jnp.float32) * s,
+        ((p >> 8) & 255).astype(jnp.float32) * s,
+        (p >> 16).astype(jnp.float32) * s,
+    )
 
 
 def _surface_rgb(obs: Observation, g: Geometry, ctx: CueContext):
@@ -390,7 +394,9 @@ def _hand_samples(g: Geometry, ctx: CueContext) -> jnp.ndarray:
     K = jnp.asarray(ctx.rig.K, uv.dtype)
     rad = 0.6 * K[:, 0, 0, None] * r / jnp.maximum(z, 1e-3)  # (V, 2)
     ang = np.linspace(0.0, 2 * np.pi, 6, endpoint=False)
-    off = np.concatenate([np.zeros((1, 2)), np.stack([np.cos(ang), np.sin(ang)], -1)]).astype(np.float32)  # (7, 2)
+    off = np.concatenate([np.zeros((1, 2)), np.stack([np.cos(ang), np.sin(ang)], -1)]).astype(
+        np.float32
+    )  # (7, 2)
     return uv[:, :, None, :] + rad[:, :, None, None] * jnp.asarray(off, uv.dtype)
 
 
@@ -470,7 +476,9 @@ def _soft_bin_weights(rgb, bins: int) -> jnp.ndarray:
     ``k_j(c) = max(0, 1 − |c b − (j + ½)|)`` (clamped at the outer bin centres, so the weights sum to 1), joint
     weight the product over channels, in the bin order of :func:`_colour_bins`."""
     centre = jnp.arange(bins, dtype=rgb[0].dtype) + 0.5
-    k = [jnp.maximum(1.0 - jnp.abs(jnp.clip(c * bins, 0.5, bins - 0.5)[..., None] - centre), 0.0) for c in rgb]
+    k = [
+        jnp.maximum(1.0 - jnp.abs(jnp.clip(c * bins, 0.5, bins - 0.5)[..., None] - centre), 0.0) for c in rgb
+    ]
     return (k[0][..., :, None, None] * k[1][..., None, :, None] * k[2][..., None, None, :]).reshape(
         rgb[0].shape + (bins**3,)
     )
@@ -504,21 +512,29 @@ def colour_histogram(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndar
     else:
         w = (g.surface_facing & g.surface_inside).astype(jnp.float32)
         b = maps.gather(ctx.aux["bins"], g.surface_index, raw=True).astype(jnp.int32)  # (V, P)
-    total = 0.0
     V = w.shape[0]
+    if not soft:
+        # one scatter-add for every ROI (cost independent of the number of bins and ROIs): point p adds w_p to
+        # slot roi(p)·B + b_p; points outside the ROIs go to a spare last slot
+        roi = np.full(len(ctx.surface_segment), len(segs), np.int32)
+        for r, s in enumerate(segs):
+            sl = _segment_points(ctx, s)
+            roi[sl] = r
+        slot = jnp.asarray(roi * B)[None, :] + b  # (V, P)
+        h = jnp.zeros((V, (len(segs) + 1) * B), w.dtype).at[jnp.arange(V)[:, None], slot].add(w)
+        h = h[:, : len(segs) * B].reshape(V, len(segs), B)
+        n = jnp.sum(h, axis=-1)  # (V, R)
+        h = h / jnp.maximum(n, 1e-12)[..., None]
+        bc = jnp.sum(jnp.sqrt(h) * sqrt_ref, axis=-1)
+        return jnp.sum(jnp.where(n > 0, jnp.clip(1.0 - bc, 0.0, 1.0), 1.0), axis=-1) / (2.0 * sigma * sigma)
+    total = 0.0
     for r, s in enumerate(segs):
         sl = _segment_points(ctx, s)
         ws = w[:, sl]
         n = jnp.sum(ws, axis=-1)  # (V,)
-        if soft:
-            h = jnp.sum(onehot[:, sl] * ws[..., None], axis=1)
-        else:  # scatter-add: cost independent of the number of bins
-            h = jnp.zeros((V, B), ws.dtype).at[jnp.arange(V)[:, None], b[:, sl]].add(ws)
+        h = jnp.sum(onehot[:, sl] * ws[..., None], axis=1)
         h = h / jnp.maximum(n, 1e-12)[:, None]  # (V, B)
-        if soft:
-            bc = jnp.sum(jnp.sqrt(h * ctx.ref[:, r] + 1e-6), axis=-1) - B * 1e-3
-        else:
-            bc = jnp.sum(jnp.sqrt(h) * sqrt_ref[:, r], axis=-1)
+        bc = jnp.sum(jnp.sqrt(h * ctx.ref[:, r] + 1e-6), axis=-1) - B * 1e-3
         d2 = jnp.where(n > 0, jnp.clip(1.0 - bc, 0.0, 1.0), 1.0)
         total = total + d2
     return total / (2.0 * sigma * sigma)
@@ -534,10 +550,9 @@ def homogeneous_colour(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.nd
     rgb, inside = _surface_rgb(obs, g, ctx)
     w = (g.surface_facing & inside).astype(rgb[0].dtype)
     segs = _segment_ids(ctx, ctx.params.get("segments"), "limbs")
-    # all per-limb sums at once: (7, V, P) moments times the static (P, L) membership matrix
-    member = np.asarray(ctx.surface_segment)[:, None] == np.asarray(segs)[None, :]
+    # per-limb sums of the (7, V, P) moments over each limb's contiguous run of points (static slices)
     mom = jnp.stack([w] + [w * c for c in rgb] + [w * c * c for c in rgb])
-    S = jnp.einsum("kvp,pl->kvl", mom, jnp.asarray(member, w.dtype), precision=jax.lax.Precision.HIGHEST)
+    S = jnp.stack([jnp.sum(mom[..., _segment_points(ctx, s)], axis=-1) for s in segs], -1)  # (7, V, L)
     n = S[0]
     ns = jnp.maximum(n, 1e-12)
     var = sum(S[4 + c] / ns - (S[1 + c] / ns) ** 2 for c in range(3))  # (V, L)
@@ -550,7 +565,10 @@ def colour_template(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarr
     """Li & Kulić colour cue (eq. 3): the RGB distance between each sample point's colour and its template, the
     colour the same sample point had in the first frame (:meth:`~jaxmocap.likelihood.Likelihood.with_references`),
     rescaled to [0, 1]: ``E_v = Σ_p m_vp ‖c_vp(x) − T_vp‖ / √3 / Σ_p m_vp`` over the samples that face camera
-    ``v`` now and had a template there (``m``); 1 when there are none. Differentiable with ``bilinear=True``."""
+    ``v`` now and had a template there (``m``); 1 when there are none. Colours are read as the 8-bit values
+    ``round(255 c) / 255`` of the nearest pixel (``bilinear=True``: the stored colour planes interpolated
+    bilinearly, which makes the cue differentiable); the template is read the same way, so the first frame has
+    ``E = 0``."""
     T, valid = ctx.ref  # (3, V, P), (V, P)
     rgb, inside = _surface_rgb(obs, g, ctx)
     m = (valid & g.surface_facing & inside).astype(rgb[0].dtype)
@@ -607,12 +625,16 @@ def keypoints(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
     """
     pairs = ctx.params.get("pairs")
     if pairs is None:
-        pairs = tuple(p for p in KEYPOINT_LAYOUTS[ctx.params.get("layout", "body25b")] if p[0] in ctx.joint_names)
+        pairs = tuple(
+            p for p in KEYPOINT_LAYOUTS[ctx.params.get("layout", "body25b")] if p[0] in ctx.joint_names
+        )
     sigma = ctx.params.get("sigma_px", 20.0)
     jidx = _joint_index(ctx, [j for j, _ in pairs])
     kidx = np.asarray([k for _, k in pairs])
     if kidx.max() >= obs.keypoints2d.shape[1]:
-        raise ValueError(f"keypoint index {int(kidx.max())} but the detections have {obs.keypoints2d.shape[1]}")
+        raise ValueError(
+            f"keypoint index {int(kidx.max())} but the detections have {obs.keypoints2d.shape[1]}"
+        )
     det = obs.keypoints2d[:, kidx]  # (V, M, 3)
     d = g.joints_uv[:, jidx] - det[..., :2]
     r2 = jnp.sum(d * d, axis=-1) / (sigma * sigma)
@@ -690,8 +712,11 @@ def interpenetration(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndar
     """Inter-penetration prior (López Méndez eq. 6.2–6.3): limbs may not pass through each other.
 
     For the static cone pairs ``pairs`` (segment names, or cone indices in :func:`jaxmocap.flesh.cone_segments`
-    order; default :data:`INTERPENETRATION_PAIRS`), the closest distance ``d`` between the two cone axes is
-    compared with the sum of the largest radii: ``E = Σ max(0, r_i + r_j − d)² / s²`` (``scale`` s, 0.02 m).
+    order; default :data:`INTERPENETRATION_PAIRS`), the closest points ``p_i(s*)``, ``p_j(t*)`` of the two cone axes
+    (distance ``d``) are compared with the sum of the cones' radii there, ``r_i(s*) = r_a,i + s* (r_b,i − r_a,i)``
+    (likewise ``r_j(t*)``): ``E = Σ max(0, r_i(s*) + r_j(t*) − d)² / s²`` (``scale`` s, 0.02 m). Comparing the
+    radii at the closest points rather than the largest radii keeps tapered limbs that hang beside the torso
+    (the rest pose) penetration-free.
     """
     prims = g.primitives
     cones = flesh.cone_segments(ctx.model)
@@ -709,14 +734,20 @@ def interpenetration(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndar
     s = ctx.params.get("scale", 0.02)
     total = jnp.zeros((), prims.cone_a.dtype)
     for i, j in pairs:
-        d = _segment_distance(prims.cone_a[i], prims.cone_b[i], prims.cone_a[j], prims.cone_b[j])
-        r = jnp.maximum(prims.r_a[i], prims.r_b[i]) + jnp.maximum(prims.r_a[j], prims.r_b[j])
+        d, si, tj = _segment_distance(prims.cone_a[i], prims.cone_b[i], prims.cone_a[j], prims.cone_b[j])
+        r = (
+            prims.r_a[i]
+            + si * (prims.r_b[i] - prims.r_a[i])
+            + prims.r_a[j]
+            + tj * (prims.r_b[j] - prims.r_a[j])
+        )
         total = total + jnp.maximum(r - d, 0.0) ** 2
     return total / (s * s)
 
 
 def _segment_distance(p0, p1, q0, q1):
-    """Closest distance between segments ``p0p1`` and ``q0q1`` (clamped parameters; smooth almost everywhere)."""
+    """Closest distance between segments ``p0p1`` and ``q0q1`` and the parameters ``s, t ∈ [0, 1]`` of the closest
+    points ``p0 + s (p1 − p0)``, ``q0 + t (q1 − q0)`` (clamped; smooth almost everywhere): ``(d, s, t)``."""
     d1, d2, r = p1 - p0, q1 - q0, p0 - q0
     a, e, f = jnp.dot(d1, d1), jnp.dot(d2, d2), jnp.dot(d2, r)
     b, c = jnp.dot(d1, d2), jnp.dot(d1, r)
@@ -725,7 +756,7 @@ def _segment_distance(p0, p1, q0, q1):
     t = jnp.clip((b * s + f) / jnp.maximum(e, 1e-12), 0.0, 1.0)
     s = jnp.clip((b * t - c) / jnp.maximum(a, 1e-12), 0.0, 1.0)
     diff = p0 + s * d1 - (q0 + t * d2)
-    return jnp.sqrt(jnp.dot(diff, diff) + 1e-12)
+    return jnp.sqrt(jnp.dot(diff, diff) + 1e-12), s, t
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -766,7 +797,9 @@ CUES: dict[str, CueSpec] = {
     "edges": CueSpec(edges, True, _contour_needs, ("edges",), "bilinear"),
     "edge_distance": CueSpec(edge_distance, True, _contour_needs, ("edge_dt",), "bilinear"),
     "edge_fraction": CueSpec(edge_fraction, True, _fixed("contour", "contour_index"), ("edges",), "no"),
-    "depth": CueSpec(depth, True, _fixed("surface", "surface_index", "facing"), ("depth",), "no", _prepare_depth),
+    "depth": CueSpec(
+        depth, True, _fixed("surface", "surface_index", "facing"), ("depth",), "no", _prepare_depth
+    ),
     "silhouette_divergence": CueSpec(
         silhouette_divergence, True, _fixed("primitives"), ("foreground",), "no", _prepare_divergence
     ),
@@ -782,10 +815,21 @@ CUES: dict[str, CueSpec] = {
         "histogram",
     ),
     "homogeneous_colour": CueSpec(
-        homogeneous_colour, True, _fixed("surface", "surface_index", "facing"), ("rgb",), "bilinear", _prepare_colour
+        homogeneous_colour,
+        True,
+        _fixed("surface", "surface_index", "facing"),
+        ("rgb",),
+        "bilinear",
+        _prepare_colour,
     ),
     "colour_template": CueSpec(
-        colour_template, True, _fixed("surface", "surface_index", "facing"), ("rgb",), "bilinear", _prepare_colour, "template"
+        colour_template,
+        True,
+        _fixed("surface", "surface_index", "facing"),
+        ("rgb",),
+        "bilinear",
+        _prepare_colour,
+        "template",
     ),
     "keypoints": CueSpec(keypoints, True, _fixed("joints", "joints_uv"), ("keypoints2d",), "yes"),
     "blobs3d": CueSpec(blobs3d, False, _fixed("joints"), (), "yes"),

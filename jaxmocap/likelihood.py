@@ -133,7 +133,9 @@ class Likelihood:
             )
         for c, cue in enumerate(cue_list):
             if not cue.spec.per_view and not np.all(lam[:, c, :] == lam[:, c, :1]):
-                raise ValueError(f"cue {cue.name!r} has no views: its schedule must be the same for every view")
+                raise ValueError(
+                    f"cue {cue.name!r} has no views: its schedule must be the same for every view"
+                )
         w = np.ones(V, np.float32) if view_weights is None else np.asarray(view_weights, np.float32)
         if w.shape != (V,):
             raise ValueError(f"view_weights needs one weight per view ({V})")
@@ -179,7 +181,9 @@ class Likelihood:
                 if not obs.has(field):
                     raise ValueError(f"cue {cue.name!r} needs observation field {field!r}, which is empty")
             if cue.spec.reference and (not self.references or self.references[c] is None):
-                raise ValueError(f"cue {cue.name!r} needs reference data: call with_references(x0, obs0) first")
+                raise ValueError(
+                    f"cue {cue.name!r} needs reference data: call with_references(x0, obs0) first"
+                )
         if obs.num_views != self.rig.num_views:
             raise ValueError(f"observation has {obs.num_views} views, the calibration {self.rig.num_views}")
 
@@ -200,11 +204,16 @@ class Likelihood:
             Cc = camera.camera_centres(self.rig).astype(R.dtype)  # (V, 3)
             d = Cc[:, None, :] - t[None]  # (V, S, 3)
             out["camera_local"] = jnp.stack(
-                [R[None, :, 0, i] * d[..., 0] + R[None, :, 1, i] * d[..., 1] + R[None, :, 2, i] * d[..., 2] for i in range(3)],
+                [
+                    R[None, :, 0, i] * d[..., 0] + R[None, :, 1, i] * d[..., 1] + R[None, :, 2, i] * d[..., 2]
+                    for i in range(3)
+                ],
                 -1,
             )
         if needs & {"joints", "joints_uv"}:
-            out["joints"] = kinematics.transform_points(R, t, self.model.joint_point, self.model.joint_segment)
+            out["joints"] = kinematics.transform_points(
+                R, t, self.model.joint_point, self.model.joint_segment
+            )
         if needs & {"contour", "contour_index", "primitives"}:
             out["primitives"] = prims = flesh.world_primitives(self.model, R, t)
         if needs & {"contour", "contour_index"}:
@@ -217,7 +226,9 @@ class Likelihood:
                 )(Cc)
                 pts.append(pc.reshape(V, -1, 3))
             if prims.num_ellipsoids:
-                pe = jax.vmap(lambda c: flesh.ellipsoid_contours(prims.ell_centre, prims.ell_axes, c, 2 * k))(Cc)
+                pe = jax.vmap(lambda c: flesh.ellipsoid_contours(prims.ell_centre, prims.ell_axes, c, 2 * k))(
+                    Cc
+                )
                 pts.append(pe.reshape(V, -1, 3))
             out["contour"] = jnp.concatenate(pts, axis=1)
         return out
@@ -304,7 +315,9 @@ class Likelihood:
         layer = getattr(layer, "index", layer)
         return self.schedule[jnp.clip(layer, 0, self.schedule.shape[0] - 1)]
 
-    def log_likelihood(self, x: jnp.ndarray, obs: Observation, layer=0, aux: tuple | None = None) -> jnp.ndarray:
+    def log_likelihood(
+        self, x: jnp.ndarray, obs: Observation, layer=0, aux: tuple | None = None
+    ) -> jnp.ndarray:
         """Scalar ``log p_l(z | x)`` of one particle at annealing layer ``layer`` (see :meth:`layer_lambda`)."""
         return -jnp.sum(self.layer_lambda(layer) * self.view_energies(x, obs, aux))
 
@@ -351,27 +364,36 @@ class Likelihood:
         x0 = jnp.asarray(x0, self.model.offset.dtype)
         V = self.rig.num_views
         H, W = obs0.image_shape
-        g0 = None
         for c, cue in enumerate(self.cues):
             kind = cue.spec.reference
             if kind is None:
                 continue
             if not obs0.has("rgb"):
                 raise ValueError(f"cue {cue.name!r} needs the first frame's rgb map for its reference")
-            rgb8 = np.asarray(jnp.round(jnp.clip(obs0.rgb.astype(jnp.float32) * cues._unit_scale(obs0.rgb), 0, 1) * 255))
+            rgb8 = np.asarray(
+                jnp.round(jnp.clip(obs0.rgb.astype(jnp.float32) * cues._unit_scale(obs0.rgb), 0, 1) * 255)
+            )
             rgb8 = rgb8.astype(np.uint8)
             ctx = self._context(c)
             if kind == "histogram":
                 p = cue.param_dict
                 segs = cues._segment_ids(ctx, p.get("rois"), "fleshed")
-                prims = render.primitives_from_model(self.model, x0)
-                label_of = {s: i for i, s in enumerate(flesh.cone_segments(self.model) + flesh.ellipsoid_segments(self.model))}
+                # the ROI masks are rendered in float32 whatever the model's dtype (a reference, not differentiated)
+                prims = jax.tree_util.tree_map(
+                    lambda a: jnp.asarray(a, jnp.float32), render.primitives_from_model(self.model, x0)
+                )
+                cam = [np.asarray(a, np.float32) for a in (self.rig.K, self.rig.dist, self.rig.R, self.rig.t)]
+                label_of = {
+                    s: i
+                    for i, s in enumerate(
+                        flesh.cone_segments(self.model) + flesh.ellipsoid_segments(self.model)
+                    )
+                }
                 hists = []
                 for v in range(V):
                     lab = np.asarray(
                         render.render_view(
-                            np.asarray(self.rig.K[v]), np.asarray(self.rig.dist[v]), np.asarray(self.rig.R[v]),
-                            np.asarray(self.rig.t[v]), (W, H), prims, normals=False,
+                            cam[0][v], cam[1][v], cam[2][v], cam[3][v], (W, H), prims, normals=False
                         ).label
                     )
                     masks = [lab == label_of[s] for s in segs]
@@ -380,7 +402,9 @@ class Likelihood:
                         rows = []
                         for m in masks:
                             px = jnp.asarray(rgb8[v][m], jnp.float32) / 255.0
-                            h = jnp.sum(cues._soft_bin_weights(tuple(px[:, i] for i in range(3)), bins), axis=0)
+                            h = jnp.sum(
+                                cues._soft_bin_weights(tuple(px[:, i] for i in range(3)), bins), axis=0
+                            )
                             rows.append(np.asarray(h) / max(float(jnp.sum(h)), 1e-12))
                         hists.append(np.stack(rows))
                     else:
@@ -388,13 +412,16 @@ class Likelihood:
                         hists.append(roi_histograms(bgr, masks, bins=bins, space=p.get("space", "rgb")))
                 refs[c] = jnp.asarray(np.stack(hists), self.model.offset.dtype)
             elif kind == "template":
-                if g0 is None:
-                    g0 = self.geometry(x0, (H, W))
-                    idx, inside = maps.nearest_index(g0.surface_uv, obs0.rgb.shape[:3])
-                    T = jnp.moveaxis(maps.gather(obs0.rgb, idx, cues._unit_scale(obs0.rgb)), -1, 0)  # (3, V, P)
-                    valid = g0.surface_facing & inside
-                    if obs0.has("foreground"):
-                        valid = valid & (maps.gather(obs0.foreground, idx, cues._unit_scale(obs0.foreground)) >= 0.5)
+                # the colours are read exactly as the cue reads them (nearest 8-bit colour, or bilinear), so that
+                # the energy at (x0, obs0) is 0
+                g0 = self.geometry(x0, (H, W))
+                ctx = self._context(c, cues._prepare_colour(obs0, ctx, {}))
+                rgb, inside = cues._surface_rgb(obs0, g0, ctx)
+                T = jnp.stack(rgb)  # (3, V, P)
+                valid = g0.surface_facing & inside
+                if obs0.has("foreground"):
+                    fg = maps.gather(obs0.foreground, g0.surface_index, cues._unit_scale(obs0.foreground))
+                    valid = valid & (fg >= 0.5)
                 refs[c] = (T.astype(self.model.offset.dtype), valid)
         return dataclasses.replace(self, references=tuple(refs))
 
