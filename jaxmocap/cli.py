@@ -7,6 +7,8 @@ Subcommands:
 * ``jaxmocap calib convert IN OUT.toml`` — write it as the canonical Pose2Sim-layout TOML.
 * ``jaxmocap synth --motion CLIP --rig {stereo,frontal-lateral,ring4,FILE} --out DIR [...]`` — render a synthetic
   multi-view sequence of a mocap clip with exact ground truth (:func:`jaxmocap.synth.synthesize`).
+* ``jaxmocap sweep SEQ ... --filters F,G --seeds A:B --out results.csv`` — sequences × filters × seeds, the
+  seeds in one compiled call spread over the available devices, into one table (:mod:`jaxmocap.sweep`).
 
 Bad input prints one line naming the file (and line) and exits with status 2, never a traceback.
 """
@@ -148,7 +150,23 @@ def _open_source(args):
         raise ValueError(
             "--calibration, --keypoints and --depth go with --videos (a sequence folder has its own)"
         )
+    from jaxmocap.io import parsec_sequence
+
+    if parsec_sequence.is_parsec_folder(args.input):  # a PARSEC bodytrack sequence (CALIB/, CAM<k>/, FG<k>/)
+        return parsec_sequence.ParsecSource(args.input)
     return tracker.SequenceSource(args.input)
+
+
+def _make_run(source, args, options):
+    """The tracking run for ``source``: bodytrack's configuration for a PARSEC sequence, else the Tracker."""
+    from jaxmocap import tracker
+    from jaxmocap.io.parsec_sequence import ParsecSource
+
+    if isinstance(source, ParsecSource):
+        from jaxmocap.parsec_track import ParsecTracker
+
+        return ParsecTracker(source, args.out, options, quiet=args.quiet)
+    return tracker.Tracker(source, args.out, options, quiet=args.quiet)
 
 
 def _silence_opencv() -> None:
@@ -159,15 +177,13 @@ def _silence_opencv() -> None:
 
 
 def _track(args) -> int:
-    from jaxmocap import tracker
-
     _silence_opencv()
 
     try:
         options = _track_options(args)
         source = _open_source(args)
         try:
-            run = tracker.Tracker(source, args.out, options, quiet=args.quiet)
+            run = _make_run(source, args, options)
             summary = run.run()
         finally:
             source.close()
@@ -296,6 +312,89 @@ def _demo(args) -> int:
     return 0
 
 
+# ---------------------------------------------------------------------------------------------------------------
+# sweep
+
+
+def _sweep(args) -> int:
+    from jaxmocap import sweep
+
+    _silence_opencv()
+    if args.distributed or args.coordinator is not None:
+        import jax  # the multi-process runtime: every process runs this command with the same options
+
+        jax.distributed.initialize(args.coordinator, args.num_processes, args.process_id)
+    over = dict(
+        sequences=args.sequences or None,
+        filters=args.filters,
+        seeds=args.seeds,
+        model=args.model,
+        particles=args.particles,
+        layers=args.layers,
+        cues=args.cues,
+        frames=args.frames,
+        devices=args.devices,
+        chunk=args.chunk,
+    )
+    try:
+        if args.spec is not None:
+            spec = sweep.load_spec(args.spec, **over)
+        else:
+            if not args.sequences:
+                raise ValueError("give sequence folders or --spec FILE")
+            spec = sweep.make_spec(**{k: v for k, v in over.items() if v is not None})
+        say = None if args.quiet else (lambda line: print(line, flush=True))
+        rows = sweep.run_sweep(spec, progress=say)
+    except MocapInputError:
+        raise
+    except ValueError as e:  # a bad option value
+        print(f"jaxmocap: error: {e}", file=sys.stderr)
+        return 2
+    if args.distributed or args.coordinator is not None:
+        import jax
+
+        if jax.process_index() != 0:  # every process holds the gathered results; the first one writes them
+            return 0
+    csv_path, md_path = sweep.write_table(rows, args.out)
+    if not args.quiet:
+        print(f"wrote {len(rows)} run(s) to {csv_path} and {md_path}")
+    return 0
+
+
+def _add_sweep_command(sub) -> None:
+    sw = sub.add_parser(
+        "sweep",
+        help="run sequences x filters x seeds, spread over the devices, into one results table",
+        description="Run every sequence x filter x seed (the seeds of a sequence and filter in one compiled "
+        "call, spread over the available devices) and write the mean 3D joint error of each run to a CSV "
+        "table and a Markdown table next to it.",
+    )
+    sw.add_argument("sequences", nargs="*", help="sequence folders with ground truth (or use --spec)")
+    sw.add_argument(
+        "--spec", help="TOML or JSON spec (keys: sequences, filters, seeds, model, particles, ...)"
+    )
+    sw.add_argument("--filters", help=f"comma-separated filters (default apf): {', '.join(_FILTERS)}")
+    sw.add_argument("--seeds", help="seeds: A:B or comma-separated (default 0)")
+    sw.add_argument("--model", choices=_MODELS, help="body model (default: the body file's, else full25)")
+    sw.add_argument("--particles", type=int, help="particles (per layer for the annealed filters)")
+    sw.add_argument("--layers", type=int, help="annealing layers of the annealed filters")
+    sw.add_argument("--cues", help="comma-separated cues with optional weights, as for track")
+    sw.add_argument("--frames", help="frame range A:B (default: all)")
+    sw.add_argument("--devices", type=int, help="devices to spread the runs over (default: all)")
+    sw.add_argument("--chunk", type=int, help="evaluate the likelihood in chunks of this many particles")
+    sw.add_argument("--out", required=True, help="results CSV (a Markdown table is written next to it)")
+    sw.add_argument(
+        "--distributed",
+        action="store_true",
+        help="join JAX's multi-process runtime (jax.distributed.initialize; cluster settings auto-detected)",
+    )
+    sw.add_argument("--coordinator", metavar="HOST:PORT", help="coordinator of the multi-process runtime")
+    sw.add_argument("--num-processes", type=int, help="processes of the multi-process runtime")
+    sw.add_argument("--process-id", type=int, help="index of this process (0 writes the table)")
+    sw.add_argument("--quiet", action="store_true", help="no progress lines")
+    sw.set_defaults(func=_sweep)
+
+
 # the choices of jaxmocap.tracker (MODELS, FILTERS, FOREGROUNDS), repeated so that building the parser does not
 # import JAX; tests/test_cli_track.py checks that they agree
 _MODELS = ("upper9", "upper14", "full25", "parsec31")
@@ -310,6 +409,8 @@ _FILTERS = (
     "fbapf2",
     "fbapf3",
     "m-apf",
+    "hybrid",
+    "apf-refine",
 )
 _FOREGROUNDS = ("auto", "mask", "median", "mog2", "none")
 
@@ -321,7 +422,9 @@ def _add_tracking_commands(sub) -> None:
         description="Track a sequence folder (synthesis format) or synchronised videos with their calibration; "
         "writes poses.npz, poses.csv, diagnostics.json and track.bvh to --out after every frame.",
     )
-    tr.add_argument("input", nargs="?", help="sequence folder (or use --videos)")
+    tr.add_argument(
+        "input", nargs="?", help="sequence folder or PARSEC bodytrack sequence folder (or use --videos)"
+    )
     tr.add_argument("--out", required=True, help="output folder")
     tr.add_argument("--videos", nargs="+", metavar="V", help="one synchronised video per camera")
     tr.add_argument(
@@ -456,6 +559,7 @@ def build_parser() -> argparse.ArgumentParser:
     syn.add_argument("--out", required=True, help="output sequence folder")
     syn.set_defaults(func=_synth)
     _add_tracking_commands(sub)
+    _add_sweep_command(sub)
     return p
 
 

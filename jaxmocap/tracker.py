@@ -99,8 +99,15 @@ FILTERS = (
     "fbapf2",
     "fbapf3",
     "m-apf",
+    "hybrid",
+    "apf-refine",
 )
-ANNEALED = ("apf", "iapf", "hierarchical", "fbapf", "fbapf2", "fbapf3", "m-apf")
+ANNEALED = ("apf", "iapf", "hierarchical", "fbapf", "fbapf2", "fbapf3", "m-apf", "hybrid", "apf-refine")
+#: Filters that differentiate the likelihood (:mod:`jaxmocap.filters.hybrid`): their cues use bilinear lookups.
+GRADIENT_FILTERS = ("hybrid", "apf-refine")
+#: The gradient move of ``--filter hybrid``: S = 3 normalised steps of one diffusion std on the k = 5 best distinct
+#: particles per layer (the configuration of ``benchmarks/results/hybrid_vs_apf.md``).
+HYBRID_MOVE = dict(steps=3, learning_rate=1.0, optimizer="normalized", best_k=5)
 FOREGROUNDS = ("auto", "mask", "median", "mog2", "none")
 #: Cues computed by the tracker itself (besides :data:`jaxmocap.cues.CUES`).
 TRACKER_CUES = ("coverage",)
@@ -375,7 +382,9 @@ def make_filter(
     :func:`jaxmocap.annealing.corrected_beta`). ``fbapf*`` differ from ``apf`` only in the likelihood's per-layer
     cue weights (built by the caller). ``icondensation`` / ``iapf`` draw part of their particles around
     ``observation.center`` (when ``observation.valid``) and from the prior ``N(prior_mean, prior_std²)``.
-    ``partitioned`` / ``hierarchical`` split the DOFs by :func:`partition_groups`.
+    ``partitioned`` / ``hierarchical`` split the DOFs by :func:`partition_groups`. ``hybrid`` is the APF with
+    gradient moves (:data:`HYBRID_MOVE`) and ``apf-refine`` the APF whose estimate is refined by gradient ascent
+    (:class:`jaxmocap.filters.hybrid.HybridAPF`); both need ``loglik`` differentiable in ``X``.
     """
     if name not in FILTERS:
         raise ValueError(f"unknown filter {name!r}; choose one of {', '.join(FILTERS)}")
@@ -425,6 +434,13 @@ def make_filter(
             **prior,
             **common,
         )
+    if name in GRADIENT_FILTERS:
+        from jaxmocap.filters.hybrid import GradientMove, HybridAPF
+
+        if name == "apf-refine":
+            return HybridAPF.refined(loglik, std, num_particles, sched, **common)
+        move = GradientMove(**{**HYBRID_MOVE, "best_k": min(HYBRID_MOVE["best_k"], num_particles)})
+        return HybridAPF(loglik, std, num_particles, sched, move=move, **common)
     return APF(loglik, std, num_particles, sched, **common)
 
 
@@ -1036,11 +1052,25 @@ class Tracker:
         table = lk.schedule_preset(preset, stand_in, self.layers)  # (L, C): λ_c(l)
         cols = [i for i, n in enumerate(names) if n not in TRACKER_CUES]
         cue_objs = []
+        gradient = o.filter in GRADIENT_FILTERS
+        if gradient:
+            from jaxmocap.cues import DIFFERENTIABLE
+
+            flat = [n for n, _ in image_cues if DIFFERENTIABLE.get(n) == "no"]
+            if flat:
+                raise ValueError(
+                    f"the {o.filter} filter needs a differentiable likelihood, but cue(s) {', '.join(flat)} "
+                    "are piecewise constant in the pose; choose others with --cues (differentiable: "
+                    + ", ".join(n for n, d in DIFFERENTIABLE.items() if d != "no")
+                    + ", coverage)"
+                )
         for n, w in image_cues:
             params = {}
+            if gradient and DIFFERENTIABLE[n] in ("bilinear", "soft"):
+                params = {"bilinear": True, **({"soft": True} if DIFFERENTIABLE[n] == "soft" else {})}
             if n == "keypoints":
                 pairs = tuple((j, k) for j, k in KEYPOINT_OF.items() if j in self.model.joint_names)
-                params = {"pairs": pairs}
+                params = {**params, "pairs": pairs}
             cue_objs.append(lk.Cue(n, w, params))
         rig = self.features.rig
         self.likelihood = (
