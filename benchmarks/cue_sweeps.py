@@ -52,7 +52,9 @@ SWEEP_CUES = (
 )
 
 
-def make_frames(out: pathlib.Path, size=(640, 480), frames="60:120", fps=30.0, frame: int = 6, rig="frontal-lateral"):
+def make_frames(
+    out: pathlib.Path, size=(640, 480), frames="60:120", fps=30.0, frame: int = 6, rig="frontal-lateral"
+):
     """Render the sequence into ``out`` and return ``(model, rig, x_ref, obs_ref, x, obs, fit_rms)``: the fitted
     states and observations of frame 0 (references) and of frame ``frame`` (the sweep)."""
     seq = synth.synthesize("demo", out, rig=rig, size=size, frames=frames, fps=fps, seed=3, overwrite=True)
@@ -60,7 +62,10 @@ def make_frames(out: pathlib.Path, size=(640, 480), frames="60:120", fps=30.0, f
     gt = seq.groundtruth.joints
     cfg = FeatureConfig(foreground="static", rgb=True, blobs=True, skin="rgb", max_blobs=3)
     fx = FeatureExtractor(seq.rig, cfg)
-    bg = [synth.background_image("photo", seq.rig.image_size[v], v, 3)[..., ::-1] for v in range(seq.rig.num_views)]
+    bg = [
+        synth.background_image("photo", seq.rig.image_size[v], v, 3)[..., ::-1]
+        for v in range(seq.rig.num_views)
+    ]
     fx.set_background(bg)
     out_frames = []
     rms = []
@@ -77,7 +82,9 @@ def make_frames(out: pathlib.Path, size=(640, 480), frames="60:120", fps=30.0, f
         # needs a narrow baseline; here it only has to give the blob cues something to explain)
         rng = np.random.default_rng(t)
         names = body.EVAL_JOINTS
-        blobs = gt[t][[names.index(n) for n in ("head", "left_wrist", "right_wrist")]] + rng.normal(0, 0.01, (3, 3))
+        blobs = gt[t][[names.index(n) for n in ("head", "left_wrist", "right_wrist")]] + rng.normal(
+            0, 0.01, (3, 3)
+        )
         obs = obs._replace(blobs3d=jnp.asarray(blobs, jnp.float32), blob_conf=jnp.ones(3, jnp.float32))
         out_frames.append((xt, obs))
     (x0, obs0), (x1, obs1) = out_frames
@@ -124,13 +131,23 @@ def plot(path, a, b, E, truth, title, dofs):
     plt.close(fig)
 
 
-def run(size=(640, 480), steps=21, span=0.8, frame=6, dofs=("left_shoulder_ry", "left_elbow"), out_dir=RESULTS,
-        cue_list=SWEEP_CUES, surface_points=600):
+def run(
+    size=(640, 480),
+    steps=21,
+    span=0.8,
+    frame=6,
+    dofs=("left_shoulder_ry", "left_elbow"),
+    out_dir=RESULTS,
+    cue_list=SWEEP_CUES,
+    surface_points=600,
+):
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         model, rig, x0, obs0, x, obs, rms = make_frames(pathlib.Path(tmp) / "seq", size=size, frame=frame)
-    print(f"sequence + features: {time.perf_counter() - t0:.1f} s; full25 fit to the ground-truth joints: "
-          f"RMS {rms[0] * 100:.1f} cm (reference frame), {rms[1] * 100:.1f} cm (sweep frame)")
+    print(
+        f"sequence + features: {time.perf_counter() - t0:.1f} s; full25 fit to the ground-truth joints: "
+        f"RMS {rms[0] * 100:.1f} cm (reference frame), {rms[1] * 100:.1f} cm (sweep frame)"
+    )
     lik = L.Likelihood.create(model, rig, cue_list, surface_points=surface_points).with_references(x0, obs0)
     lik.check_observation(obs)
     a, b, E = sweep(lik, x, obs, dofs, span, steps)
@@ -142,8 +159,15 @@ def run(size=(640, 480), steps=21, span=0.8, frame=6, dofs=("left_shoulder_ry", 
     for c, cue in enumerate(lik.cues):
         off = minimum_offset(a, b, E[c], *truth)
         rows.append((cue.name, off, float(E[c].min()), float(E[c].max())))
-        plot(out_dir / f"cue_sweep_{cue.name}.png", a, b, E[c], truth, f"{cue.name}: min {off:.2f} rad from truth",
-             dofs)
+        plot(
+            out_dir / f"cue_sweep_{cue.name}.png",
+            a,
+            b,
+            E[c],
+            truth,
+            f"{cue.name}: min {off:.2f} rad from truth",
+            dofs,
+        )
     print(f"{'cue':24s} {'min offset (rad)':>16s} {'E min':>10s} {'E max':>10s}")
     for name, off, lo, hi in rows:
         print(f"{name:24s} {off:16.2f} {lo:10.3g} {hi:10.3g}")

@@ -43,7 +43,9 @@ def test_shared_index_reads_every_dtype_and_channels():
     iv = np.floor(uv[..., 1] + 0.5).astype(int)
     view = np.arange(V)[None, :, None]
     np.testing.assert_array_equal(np.asarray(maps.gather(jnp.asarray(M8), idx, raw=True)), M8[view, iv, iu])
-    np.testing.assert_allclose(np.asarray(maps.gather(jnp.asarray(M8), idx, 1 / 255)), M8[view, iv, iu] / 255, rtol=1e-6)
+    np.testing.assert_allclose(
+        np.asarray(maps.gather(jnp.asarray(M8), idx, 1 / 255)), M8[view, iv, iu] / 255, rtol=1e-6
+    )
     np.testing.assert_allclose(
         np.asarray(maps.gather(jnp.asarray(M8.astype(np.float16)), idx)), M8[view, iv, iu].astype(np.float32)
     )
@@ -73,7 +75,9 @@ def test_bilinear_exact_at_pixel_centres_and_differentiable():
     np.testing.assert_allclose(np.asarray(vals[0]), M[0].ravel(), rtol=1e-6)
     with jax.enable_x64(True):
         M64 = jnp.asarray(M, jnp.float64)
-        check_grads(lambda p: maps.lookup_bilinear(M64, p)[0], (jnp.asarray([[[3.3, 4.6], [7.2, 1.9]]]),), order=1)
+        check_grads(
+            lambda p: maps.lookup_bilinear(M64, p)[0], (jnp.asarray([[[3.3, 4.6], [7.2, 1.9]]]),), order=1
+        )
 
 
 def test_non_finite_coordinates_are_outside_not_nan():
