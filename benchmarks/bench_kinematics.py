@@ -102,12 +102,12 @@ def run(particles: int = 4000, repeats: int = 7, points: int = 600) -> dict:
     }
 
 
-def main():
+def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--particles", type=int, default=4000)
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--quick", action="store_true", help="tiny sizes (smoke test)")
-    a = ap.parse_args()
+    a = ap.parse_args(argv)
     r = run(200, 2) if a.quick else run(a.particles, a.repeats)
     print(f"FK + projection, full25, {r['points']} points, {r['views']} views, {r['particles']} particles")
     print(f"  JAX   : {r['jax_particles_per_s']:12,.0f} particles/s")

@@ -25,13 +25,13 @@ DATA = ROOT / "tests" / "data" / "parsec"
 BODYTRACK_US = 13.0
 
 
-def _args():
+def _args(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--particles", type=int, default=4000)
     ap.add_argument("--repeats", type=int, default=9)
     ap.add_argument("--numpy-repeats", type=int, default=3)
     ap.add_argument("--devices", type=int, default=1, help="XLA host devices to split the particles over")
-    return ap.parse_args()
+    return ap.parse_args(argv)
 
 
 ARGS = _args() if __name__ == "__main__" else None

@@ -67,10 +67,11 @@ def look_at(centre, target):
     return jnp.asarray(R, jnp.float32), jnp.asarray(-R @ c, jnp.float32)
 
 
-def main() -> None:
+def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=30)
-    args = ap.parse_args()
+    ap.add_argument("--quick", action="store_true", help="one view, culled vs not culled only (smoke test)")
+    args = ap.parse_args(argv)
 
     prims = render.primitives_from_skeleton(
         jnp.asarray(JOINTS, jnp.float32),
@@ -97,6 +98,8 @@ def main() -> None:
                 for tile in (16, 32):
                     for cull in (True, False):
                         configs.append((view, caps, normals, tile, cull))
+    if args.quick:
+        configs = [c for c in configs if c[:4] == ("3.5 m", "sphere", True, 32)]
 
     def call(cfg):
         view, caps, normals, tile, cull = cfg

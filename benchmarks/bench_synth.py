@@ -39,11 +39,11 @@ def _median_ms(samples):
     return 1e3 * float(np.median(samples))
 
 
-def main() -> None:
+def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", default="120:240")
     ap.add_argument("--size", default="640x480")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     size = synth.parse_size(args.size)
     motion = synth.load_motion("demo")
     a, b = synth.parse_frames(args.frames, motion.num_frames)

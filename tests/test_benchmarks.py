@@ -1,0 +1,91 @@
+"""The benchmark runner: its RESULTS.md block logic, and a quick-mode smoke run of every benchmark (tiny sizes, no
+timing assertion)."""
+
+import pathlib
+import sys
+
+import pytest
+
+BENCH = pathlib.Path(__file__).resolve().parents[1] / "benchmarks"
+sys.path.insert(0, str(BENCH))
+
+import run as runner  # noqa: E402
+
+
+def test_update_block_replaces_only_between_markers():
+    text = "# R\n\nhand-written A\n\n<!-- generated:x begin -->\nold\n<!-- generated:x end -->\n\nhand-written B\n"
+    out = runner.update_block(text, "x", "new table")
+    assert "old" not in out
+    assert "hand-written A" in out and "hand-written B" in out
+    assert out.index("hand-written A") < out.index("new table") < out.index("hand-written B")
+    # a second update replaces again (one block, not two)
+    out2 = runner.update_block(out, "x", "newer")
+    assert out2.count("generated:x begin") == 1 and "new table" not in out2 and "newer" in out2
+
+
+def test_update_block_appends_missing_section():
+    out = runner.update_block("# R\n\ntext\n", "y", "| a |\n|---|", "Title Y")
+    assert out.startswith("# R\n\ntext\n")
+    assert "## Title Y\n\n<!-- generated:y begin -->\n| a |\n|---|\n<!-- generated:y end -->\n" in out
+
+
+def test_unknown_benchmark_is_an_error(capsys):
+    with pytest.raises(SystemExit) as e:
+        runner.main(["--quick", "--only", "nonexistent"])
+    assert e.value.code == 2
+    assert "unknown benchmark" in capsys.readouterr().err
+
+
+def test_machine_block_names_versions():
+    block = runner.machine_block((1.0, 2.0, 3.0))
+    for word in (
+        "cores",
+        "load average at start 1.0 / 2.0 / 3.0",
+        "Python",
+        "JAX",
+        "jaxlib",
+        "NumPy",
+        "OpenCV",
+    ):
+        assert word in block
+
+
+@pytest.mark.slow
+def test_runner_quick_writes_results(tmp_path):
+    path = tmp_path / "RESULTS.md"
+    path.write_text("# Benchmark results\n\nkeep me\n")
+    assert runner.main(["--quick", "--only", "kinematics", "--results", str(path)]) == 0
+    text = path.read_text()
+    assert "keep me" in text
+    assert "<!-- generated:machine begin -->" in text and "<!-- generated:kinematics end -->" in text
+    assert "| ratio |" in text
+
+
+# what each quick benchmark's markdown must contain (its table header or report line)
+EXPECT = {
+    "kinematics": "particles/s",
+    "likelihood": "",
+    "parsec": "µs/particle/layer",
+    "features": "pairs",
+    "render": "frames/s",
+    "synth": "view-frames/s",
+    "end_to_end": "frames/s",
+    "scaling": "| sweep |",
+    "iros": "SIR",
+    "foreground": "IoU",
+    "accuracy": "| configuration |",
+    "hybrid": "APF",
+}
+
+
+def test_every_benchmark_has_an_expectation():
+    assert set(EXPECT) == set(runner.BENCHMARKS)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(runner.BENCHMARKS))
+def test_quick_benchmark_runs(name):
+    md = runner.BENCHMARKS[name].fn(True)
+    assert isinstance(md, str) and md.strip()
+    assert "failed" not in md.lower()
+    assert EXPECT[name] in md
