@@ -10,6 +10,11 @@ maps), against bodytrack's serial 0.28 s/frame (4000 × 5) and 0.062 s/frame (10
 its β. Usage::
 
     JAX_PLATFORMS=cpu .venv/bin/python benchmarks/parsec_track.py [--seeds 3] [--report]
+    JAX_PLATFORMS=cpu .venv/bin/python benchmarks/parsec_track.py --overlay benchmarks/results/parsec_overlay.png
+
+``--overlay PATH`` skips the comparison: it tracks frames 0–1 with 1000 particles × 3 layers (seed 0) and writes a
+2×2 montage of the four cameras of frame 1 (each 320×240): the projected cones of ``parsec31`` (green), its bones
+(yellow) and joints (red), and bodytrack's joints of ``reference/poses_1000p3l.txt`` (white crosses).
 """
 
 from __future__ import annotations
@@ -20,12 +25,13 @@ import os
 import pathlib
 import time
 
+import cv2
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxmocap import body as body_mod
-from jaxmocap import parsec
+from jaxmocap import camera, parsec, viz
 from jaxmocap import parsec_track as ptrack
 from jaxmocap.filters import APF
 
@@ -67,14 +73,77 @@ def joints_mm(model, X: np.ndarray) -> np.ndarray:
     return np.asarray(f(jnp.asarray(X, jnp.float32)), np.float64)
 
 
+OVERLAY_SIZE = (320, 240)  # (width, height) of each view in the montage
+
+
+def _scaled(uv: np.ndarray, s: float) -> np.ndarray:
+    """Pixel coordinates of an image resized by ``s`` (pixel centres at integers: ``u' = s (u + ½) − ½``)."""
+    return s * (np.asarray(uv, np.float64) + 0.5) - 0.5
+
+
+def save_overlay(seq, obs, path: pathlib.Path, frame: int = 1, seed: int = 0) -> float:
+    """Track frames ``0 … frame`` (1000 × 3, ``seed``) and write the 2×2 montage of ``frame`` to ``path``.
+
+    Everything is in PARSEC's millimetres: the estimate (pelvis translation in mm) on ``parsec31(seq.shape)`` (mm),
+    projected through the ``.cal`` cameras loaded in mm (:func:`jaxmocap.camera.load_parsec_calibration`), the
+    same projection as bodytrack's ``ProjectPoints`` (:func:`jaxmocap.parsec.project`, checked here on the joints).
+    Returns the mean distance (mm) over the 15 joints between the estimate and bodytrack's pose of ``frame``.
+    """
+    N, L = 1000, 3
+    est, _ = make_runner(seq, N, L)(obs[: frame + 1], seed)
+    x = est[frame]
+    model = parsec.parsec31(seq.shape)  # millimetres
+    cal = [DATA / "sequenceB_2" / "CALIB" / f"Camera{k + 1}.cal" for k in range(seq.cameras.num_views)]
+    rig = camera.load_parsec_calibration(cal, units="mm")
+    ref = parsec.load_poses(DATA / "reference" / f"poses_{N}p{L}l.txt")[frame]
+    J, J_ref = joints_mm(model, np.stack([x, ref]))
+    g = {
+        k: np.asarray(v, np.float64)
+        for k, v in viz.overlay_geometry(model, rig, jnp.asarray(x, jnp.float32)).items()
+    }
+    ref_uv = np.asarray(parsec.project(seq.cameras, jnp.asarray(J_ref)), np.float64)  # (V, 15, 2)
+    ours_uv = np.asarray(parsec.project(seq.cameras, jnp.asarray(J)), np.float64)
+    gap = float(np.abs(ours_uv - g["joints"]).max())
+    if gap > 0.05:
+        raise AssertionError(f"viz's projection differs from bodytrack's by {gap:.3f} px")
+    W, H = OVERLAY_SIZE
+    tiles = []
+    for v, im in enumerate(seq.images[frame]):
+        s = W / im.shape[1]
+        small = cv2.resize(cv2.cvtColor(im, cv2.COLOR_GRAY2BGR), (W, H), interpolation=cv2.INTER_AREA)
+        gv = {k: (_scaled(a, s) if k in ("cones", "ellipses", "joints") else a) for k, a in g.items()}
+        tile = viz.draw_overlay(small, gv, v, model.joint_names, truth=_scaled(ref_uv[v], s))
+        cv2.putText(
+            tile, f"Camera{v + 1}", (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1, cv2.LINE_AA
+        )
+        tiles.append(tile)
+    while len(tiles) % 2:
+        tiles.append(np.zeros_like(tiles[0]))
+    rows = [np.hstack(tiles[i : i + 2]) for i in range(0, len(tiles), 2)]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(os.fspath(path), np.vstack(rows), [cv2.IMWRITE_PNG_COMPRESSION, 9]):
+        raise OSError(f"cannot write {path}")
+    return float(np.linalg.norm(J - J_ref, axis=-1).mean())
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--report", action="store_true", help=f"write {RESULTS}/parsec_track.md")
+    ap.add_argument(
+        "--overlay",
+        type=pathlib.Path,
+        metavar="PATH",
+        help="only write the overlay montage of frame 1 (1000 × 3, seed 0) to PATH (a PNG)",
+    )
     a = ap.parse_args(argv)
     seq = parsec.load_sequence(DATA / "sequenceB_2")
     t0 = time.perf_counter()
     obs = [seq.observation(t) for t in range(len(seq.frames))]
+    if a.overlay is not None:
+        d = save_overlay(seq, obs, a.overlay)
+        print(f"wrote {a.overlay} (frame 1, 1000 × 3, seed 0: {d:.1f} mm from bodytrack's pose)")
+        return 0
     prep = (time.perf_counter() - t0) / len(obs)
     model = parsec.parsec31(seq.shape)  # millimetres
     lines = []
