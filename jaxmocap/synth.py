@@ -197,7 +197,7 @@ def load_motion(
 
     if isinstance(path, Motion):
         return path
-    if os.fspath(path) == "demo" and not os.path.exists("demo"):
+    if os.fspath(path) == "demo" and not os.path.isfile("demo"):
         path, default_asf = demo_clip()
         asf = default_asf if asf is None else asf
     p = pathlib.Path(path)

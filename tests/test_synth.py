@@ -337,3 +337,12 @@ def test_command(tmp_path, capsys):
     assert cli.main([*argv, "--fps", "0", "--overwrite", "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert "not empty" in err and "fps" in err and "Traceback" not in err
+
+
+def test_demo_clip_is_not_shadowed_by_a_folder_named_demo(tmp_path, monkeypatch):
+    """``jaxmocap demo --out demo`` creates ./demo before loading the bundled clip by its name."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "demo").mkdir()
+    motion = synth.load_motion("demo")
+    reference = synth.load_motion(synth.demo_clip()[0], synth.demo_clip()[1])
+    np.testing.assert_array_equal(motion.positions, reference.positions)
