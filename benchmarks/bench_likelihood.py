@@ -28,6 +28,7 @@ import numpy as np
 from jaxmocap import body, camera, cues, flesh
 from jaxmocap import likelihood as L
 from jaxmocap.observation import make_observation
+from jaxmocap.synth import look_at
 
 W, H = 640, 480
 F = np.float32
@@ -46,18 +47,9 @@ CONFIGS = {
 # Scene
 
 
-def _look_at(c, target):
-    f = np.asarray(target, float) - c
-    f /= np.linalg.norm(f)
-    r = np.cross(f, [0.0, 0.0, 1.0])
-    r /= np.linalg.norm(r)
-    R = np.stack([r, np.cross(f, r), f])
-    return R, -R @ c
-
-
 def stereo_rig() -> camera.Rig:
     """Two cameras 30 cm apart, 1.3 m high, 3.5 m from the subject (the IROS 2007 robot head), 640×480."""
-    Rs, ts = zip(*[_look_at(np.array([3.5, y, 1.3]), [0.0, 0.0, 1.0]) for y in (-0.15, 0.15)], strict=True)
+    Rs, ts = zip(*[look_at(np.array([3.5, y, 1.3]), [0.0, 0.0, 1.0]) for y in (-0.15, 0.15)], strict=True)
     K = np.array([[500.0, 0.0, 319.5], [0.0, 500.0, 239.5], [0.0, 0.0, 1.0]])
     return camera.from_opencv(
         np.stack([K, K]), np.zeros((2, 5)), np.stack(Rs), np.stack(ts), image_size=[(W, H)] * 2

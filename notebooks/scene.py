@@ -19,6 +19,7 @@ import numpy as np
 
 from jaxmocap import body, camera, render
 from jaxmocap.observation import Observation, make_observation
+from jaxmocap.synth import look_at
 
 SMALL = os.environ.get("JAXMOCAP_NB_SMALL", "0") not in ("", "0")
 SIZE = (96, 72) if SMALL else (160, 120)
@@ -36,20 +37,11 @@ def output_dir(name: str) -> pathlib.Path:
     return out
 
 
-def _look_at(c, target):
-    f = np.asarray(target, float) - c
-    f /= np.linalg.norm(f)
-    r = np.cross(f, [0.0, 0.0, 1.0])
-    r /= np.linalg.norm(r)
-    R = np.stack([r, np.cross(f, r), f])
-    return R, -R @ c
-
-
 def rig(size=SIZE) -> camera.Rig:
     """Two cameras 3.2 m away, in front of and beside the subject, at 1.3 m height (focal 0.8 · width)."""
     W, H = size
     Rs, ts = zip(
-        *[_look_at(np.asarray(c), [0.0, 0.0, 1.0]) for c in ([3.2, 0.4, 1.3], [0.5, 3.2, 1.3])], strict=True
+        *[look_at(np.asarray(c), [0.0, 0.0, 1.0]) for c in ([3.2, 0.4, 1.3], [0.5, 3.2, 1.3])], strict=True
     )
     K = np.array([[0.8 * W, 0.0, (W - 1) / 2], [0.0, 0.8 * W, (H - 1) / 2], [0.0, 0.0, 1.0]])
     return camera.from_opencv(

@@ -13,6 +13,7 @@ from jaxmocap import body, camera, cues, flesh, render
 from jaxmocap import likelihood as L
 from jaxmocap.features.colour import bhattacharyya_distance, roi_histograms
 from jaxmocap.observation import make_observation
+from jaxmocap.synth import look_at
 
 W, H = 160, 120
 #: a colour per primitive label (cones, then the head), and the background grey
@@ -34,17 +35,8 @@ COLOURS = np.array(
 BACKGROUND = 0.55
 
 
-def _look_at(c, target):
-    f = np.asarray(target, float) - c
-    f /= np.linalg.norm(f)
-    r = np.cross(f, [0.0, 0.0, 1.0])
-    r /= np.linalg.norm(r)
-    R = np.stack([r, np.cross(f, r), f])
-    return R, -R @ c
-
-
 def _rig(dist=None):
-    Rs, ts = zip(*[_look_at(np.array([3.0, y, 1.3]), [0.0, 0.0, 1.0]) for y in (-0.15, 0.15)], strict=True)
+    Rs, ts = zip(*[look_at(np.array([3.0, y, 1.3]), [0.0, 0.0, 1.0]) for y in (-0.15, 0.15)], strict=True)
     K = np.array([[140.0, 0.0, 79.5], [0.0, 140.0, 59.5], [0.0, 0.0, 1.0]])
     d = np.zeros((2, 5)) if dist is None else np.asarray(dist)
     return camera.from_opencv(np.stack([K, K]), d, np.stack(Rs), np.stack(ts), image_size=[(W, H)] * 2)

@@ -14,23 +14,15 @@ from jax.test_util import check_grads
 from jaxmocap import body, camera, gradients, render
 from jaxmocap import likelihood as L
 from jaxmocap.observation import make_observation
+from jaxmocap.synth import look_at
 
 W, H = 160, 120
-
-
-def _look_at(c, target):
-    f = np.asarray(target, float) - c
-    f /= np.linalg.norm(f)
-    r = np.cross(f, [0.0, 0.0, 1.0])
-    r /= np.linalg.norm(r)
-    R = np.stack([r, np.cross(f, r), f])
-    return R, -R @ c
 
 
 def _rig():
     """Two cameras in front of and beside the subject, mild distortion (so every camera parameter matters)."""
     Rs, ts = zip(
-        *[_look_at(np.array(c), [0.0, 0.0, 1.0]) for c in ([3.0, 0.4, 1.4], [0.5, 3.2, 1.2])], strict=True
+        *[look_at(np.array(c), [0.0, 0.0, 1.0]) for c in ([3.0, 0.4, 1.4], [0.5, 3.2, 1.2])], strict=True
     )
     K = np.array([[131.0, 0.0, 79.5], [0.0, 133.0, 59.5], [0.0, 0.0, 1.0]])
     dist = np.array([[-0.05, 0.01, 0.001, -0.002, 0.0], [0.03, -0.01, 0.0, 0.001, 0.002]])

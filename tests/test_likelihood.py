@@ -10,22 +10,14 @@ import pytest
 from jaxmocap import body, camera, render
 from jaxmocap import likelihood as L
 from jaxmocap.observation import make_observation
+from jaxmocap.synth import look_at
 
 W, H = 320, 240
 
 
-def _look_at(c, target):
-    f = np.asarray(target, float) - c
-    f /= np.linalg.norm(f)
-    r = np.cross(f, [0.0, 0.0, 1.0])
-    r /= np.linalg.norm(r)
-    R = np.stack([r, np.cross(f, r), f])
-    return R, -R @ c
-
-
 def _stereo_rig():
     """Two cameras 30 cm apart, 1.3 m high, 3 m in front of the subject (the IROS 2007 robot head)."""
-    Rs, ts = zip(*[_look_at(np.array([3.0, y, 1.3]), [0.0, 0.0, 1.0]) for y in (-0.15, 0.15)], strict=True)
+    Rs, ts = zip(*[look_at(np.array([3.0, y, 1.3]), [0.0, 0.0, 1.0]) for y in (-0.15, 0.15)], strict=True)
     K = np.array([[262.5, 0.0, 159.5], [0.0, 262.5, 119.5], [0.0, 0.0, 1.0]])
     return camera.from_opencv(
         np.stack([K, K]), np.zeros((2, 5)), np.stack(Rs), np.stack(ts), image_size=[(W, H)] * 2

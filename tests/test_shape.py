@@ -11,6 +11,7 @@ import pytest
 from jaxmocap import body, camera, render, shape
 from jaxmocap import likelihood as L
 from jaxmocap.observation import make_observation
+from jaxmocap.synth import look_at
 
 W, H = 120, 90
 #: The subject: default dimensions times these factors (5–10 % changes, 2–4 cm on each limb).
@@ -24,18 +25,9 @@ FACTORS = {
 PAIRS = tuple((n, i) for i, n in enumerate(body.EVAL_JOINTS))
 
 
-def _look_at(c, target):
-    f = np.asarray(target, float) - c
-    f /= np.linalg.norm(f)
-    r = np.cross(f, [0.0, 0.0, 1.0])
-    r /= np.linalg.norm(r)
-    R = np.stack([r, np.cross(f, r), f])
-    return R, -R @ c
-
-
 def _rig():
     cams = ([3.2, 0.3, 1.3], [0.4, 3.3, 1.2], [-2.4, -2.2, 1.5])
-    Rs, ts = zip(*[_look_at(np.asarray(c), [0.0, 0.0, 0.95]) for c in cams], strict=True)
+    Rs, ts = zip(*[look_at(np.asarray(c), [0.0, 0.0, 0.95]) for c in cams], strict=True)
     K = np.array([[0.75 * W, 0.0, (W - 1) / 2], [0.0, 0.75 * W, (H - 1) / 2], [0.0, 0.0, 1.0]])
     return camera.from_opencv(
         np.stack([K] * 3), np.zeros((3, 5)), np.stack(Rs), np.stack(ts), image_size=[(W, H)] * 3
