@@ -24,25 +24,10 @@ from PIL import Image
 from jaxmocap import camera, synth
 from jaxmocap.body import EVAL_JOINTS
 from jaxmocap.io import sequence as seqio
+from jaxmocap.viz import SKELETON
 
 RESULTS = pathlib.Path(__file__).parent / "results"
 PANEL = (256, 192)
-BONES = [
-    ("root", "thorax"),
-    ("thorax", "head"),
-    ("thorax", "left_shoulder"),
-    ("left_shoulder", "left_elbow"),
-    ("left_elbow", "left_wrist"),
-    ("thorax", "right_shoulder"),
-    ("right_shoulder", "right_elbow"),
-    ("right_elbow", "right_wrist"),
-    ("root", "left_hip"),
-    ("left_hip", "left_knee"),
-    ("left_knee", "left_ankle"),
-    ("root", "right_hip"),
-    ("right_hip", "right_knee"),
-    ("right_knee", "right_ankle"),
-]
 
 
 def _panel(img: np.ndarray) -> np.ndarray:
@@ -72,7 +57,7 @@ def _overlay(rgb: np.ndarray, uv: np.ndarray) -> np.ndarray:
     idx = {n: i for i, n in enumerate(EVAL_JOINTS)}
     s = 16  # sub-pixel drawing
     p = np.round(uv * s).astype(np.int64)
-    for a, b in BONES:
+    for a, b in SKELETON:
         cv2.line(out, tuple(p[idx[a]]), tuple(p[idx[b]]), (255, 255, 255), 2, cv2.LINE_AA, shift=4)
     for q in p:
         cv2.circle(out, tuple(q), 5 * s, (255, 230, 0), -1, cv2.LINE_AA, shift=4)
