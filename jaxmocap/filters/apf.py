@@ -122,27 +122,9 @@ class APF:
         return beta_prev
 
     def _weigh(self, key, X, log_corr, observation, layer, beta_prev, surv_prev, previous_estimate):
-        """Weigh proposed particles ``X`` at ``layer``; returns ``(X, log_w, stats, recovered)``."""
-        ll = base.mask_loglik(
-            self.loglik_batch(X, observation, Layer(layer, self._beta_hint(layer, beta_prev)))
+        return weigh_layer(
+            self, key, X, log_corr, observation, layer, beta_prev, surv_prev, previous_estimate
         )
-        sol = annealing.choose_beta(self.schedule, ll, layer, beta_prev, surv_prev)
-        log_w, ok = base.normalise(
-            sol.beta * jnp.where(jnp.isfinite(ll), ll, 0.0) + jnp.where(jnp.isfinite(ll), log_corr, -jnp.inf)
-        )
-        stats = base.layer_stats(ll, log_w, sol.beta, sol.status)
-        X_rec = base.recover(
-            key,
-            X,
-            previous_estimate,
-            self.diffusion_std,
-            self.recovery_widen,
-            self.lower,
-            self.upper,
-            self.limit_mode,
-            self.recovery,
-        )
-        return jnp.where(ok, X, X_rec), log_w, stats, ~ok
 
     def step(self, key: jax.Array, state: State, observation) -> tuple[State, Info]:
         """One frame of ``L`` annealing layers. Returns the new state and :class:`Info` with ``(L,)`` layer stats."""
@@ -213,3 +195,21 @@ class APF:
 
 
 base.register_filter(APF, ("diffusion_std", "lower", "upper", "prior_mean", "prior_std", "detection_std"))
+
+
+def weigh_layer(filt, key, X, log_corr, observation, layer, beta_prev, surv_prev, previous_estimate):
+    """Weigh proposed particles ``X (N, D)`` at ``layer`` for an annealed filter ``filt`` (the APF, or any filter
+    with its fields: ``loglik_batch``, ``schedule``, ``diffusion_std``, limits, recovery): ``ℓ = log p(z | x)``,
+    β by the schedule, ``log w = β ℓ + log_corr`` normalised, and a re-initialised set where no weight is finite.
+    Returns ``(X, log_w, stats, recovered)``."""
+    ll = base.mask_loglik(filt.loglik_batch(X, observation, Layer(layer, filt._beta_hint(layer, beta_prev))))
+    sol = annealing.choose_beta(filt.schedule, ll, layer, beta_prev, surv_prev)
+    log_w, ok = base.normalise(
+        sol.beta * jnp.where(jnp.isfinite(ll), ll, 0.0) + jnp.where(jnp.isfinite(ll), log_corr, -jnp.inf)
+    )
+    stats = base.layer_stats(ll, log_w, sol.beta, sol.status)
+    X_rec = base.recover(
+        key, X, previous_estimate, filt.diffusion_std, filt.recovery_widen, filt.lower, filt.upper,
+        filt.limit_mode, filt.recovery,
+    )  # fmt: skip
+    return jnp.where(ok, X, X_rec), log_w, stats, ~ok

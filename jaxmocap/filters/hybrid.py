@@ -46,9 +46,9 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from jaxmocap import annealing
 from jaxmocap.annealing import Schedule
 from jaxmocap.filters import base
+from jaxmocap.filters.apf import weigh_layer
 from jaxmocap.filters.base import Info, Layer, State
 from jaxmocap.gradients import batch_value_and_grad
 
@@ -270,16 +270,18 @@ class HybridAPF:
             if any_move and move.best_k is None:
                 X = jax.lax.cond(flags[layer], lambda X: ascend(X, lay, scale), lambda X: X, X)
             X = base.diffuse(k_move, X, scale, self.lower, self.upper, self.limit_mode)
-            ll = base.mask_loglik(self.loglik_batch(X, observation, lay))
-            sol = annealing.choose_beta(self.schedule, ll, layer, beta_prev, surv_prev)
-            log_w, ok = base.normalise(jnp.where(jnp.isfinite(ll), sol.beta * ll, -jnp.inf))
-            stats = base.layer_stats(ll, log_w, sol.beta, sol.status)
-            X_rec = base.recover(
-                k_rec, X, state.estimate, self.diffusion_std, self.recovery_widen, self.lower, self.upper,
-                self.limit_mode, self.recovery,
-            )  # fmt: skip
-            X = jnp.where(ok, X, X_rec)
-            return (X, log_w, stats.beta, stats.survival_rate, recovered | ~ok, ~ok), stats
+            X, log_w, stats, rec = weigh_layer(
+                self,
+                k_rec,
+                X,
+                jnp.zeros((n,), dtype),
+                observation,
+                layer,
+                beta_prev,
+                surv_prev,
+                state.estimate,
+            )
+            return (X, log_w, stats.beta, stats.survival_rate, recovered | rec, rec), stats
 
         zero, one = jnp.zeros((), dtype), jnp.ones((), dtype)
         no = jnp.zeros((), bool)
