@@ -95,6 +95,19 @@ def _synth(args) -> int:
 # track / eval / demo
 
 
+def _particle_counts(text: str) -> int | list[int]:
+    """``--particles``: ``"300"`` → 300; ``"1000,200,500"`` → ``[1000, 200, 500]`` (one count per partition)."""
+    try:
+        counts = [int(c) for c in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"particle counts must be integers, got {text!r}") from None
+    return counts[0] if len(counts) == 1 else counts
+
+
+def _particles_text(p) -> str:
+    return "/".join(str(c) for c in p) if isinstance(p, (list, tuple)) else str(p)
+
+
 def _print_summary(summary: dict, out) -> None:
     s = summary
     fps = s.get("frames_per_s")
@@ -105,7 +118,7 @@ def _print_summary(summary: dict, out) -> None:
     print(line)
     cues = ", ".join(n if w == 1 else f"{n}:{w:g}" for n, w in s["cues"])
     print(
-        f"model {s['model']}, filter {s['filter']}, {s['particles']} particles x {s['layers']} layer(s), cues {cues}"
+        f"model {s['model']}, filter {s['filter']}, {_particles_text(s['particles'])} particles x {s['layers']} layer(s), cues {cues}"
     )
     print(f"track lost in {s['lost_frames']} frame(s), {s['reinitialisations']} re-initialisation(s)")
     if s.get("mean_error_mm") is not None:
@@ -296,7 +309,7 @@ def _demo(args) -> int:
     cues = ", ".join(n if w == 1 else f"{n}:{w:g}" for n, w in summary["cues"])
     head = [
         "jaxmocap demo: CMU 02_01 (walk), synthetic stereo, " + f"{seq.num_frames} frames at {args.size}",
-        f"model {summary['model']}, filter {summary['filter']}, {summary['particles']} particles x "
+        f"model {summary['model']}, filter {summary['filter']}, {_particles_text(summary['particles'])} particles x "
         f"{summary['layers']} layers, cues {cues}, init from ground truth",
         f"tracking {t2 - t1:.1f} s ({summary['frames_per_s']:.2f} frames/s after the first frame), total {total:.1f} s",
         "",
@@ -438,7 +451,12 @@ def _add_tracking_commands(sub) -> None:
     )
     tr.add_argument("--model", choices=_MODELS, help="body model (default: the body file's, else full25)")
     tr.add_argument("--filter", choices=_FILTERS, default="apf", help="particle filter (default apf)")
-    tr.add_argument("--particles", type=int, help="particles (per layer for the annealed filters)")
+    tr.add_argument(
+        "--particles",
+        type=_particle_counts,
+        help="particles (per layer for the annealed filters); partitioned / hierarchical: one count, or one per "
+        "partition separated by commas (full25: torso, head, arms, legs, e.g. 1000,200,500,500,500,500)",
+    )
     tr.add_argument("--layers", type=int, help="annealing layers (default 5; 2 per level for hierarchical)")
     tr.add_argument(
         "--cues", help="comma-separated cues with optional weights, e.g. foreground,edge_distance:2,coverage"

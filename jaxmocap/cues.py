@@ -549,13 +549,15 @@ def homogeneous_colour(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.nd
     sigma = ctx.params.get("sigma", 0.1)
     rgb, inside = _surface_rgb(obs, g, ctx)
     w = (g.surface_facing & inside).astype(rgb[0].dtype)
-    segs = _segment_ids(ctx, ctx.params.get("segments"), "limbs")
-    # per-limb sums of the (7, V, P) moments over each limb's contiguous run of points (static slices)
-    mom = jnp.stack([w] + [w * c for c in rgb] + [w * c * c for c in rgb])
-    S = jnp.stack([jnp.sum(mom[..., _segment_points(ctx, s)], axis=-1) for s in segs], -1)  # (7, V, L)
-    n = S[0]
+    runs = [_segment_points(ctx, s) for s in _segment_ids(ctx, ctx.params.get("segments"), "limbs")]
+
+    def limb_sums(a):  # (V, P) -> (V, L): sums over each limb's contiguous run of points (static slices)
+        return jnp.stack([jnp.sum(a[:, sl], axis=-1) for sl in runs], -1)
+
+    # one reduction per moment (stacking the seven moments first measured 20 % slower on the whole cue)
+    n = limb_sums(w)
     ns = jnp.maximum(n, 1e-12)
-    var = sum(S[4 + c] / ns - (S[1 + c] / ns) ** 2 for c in range(3))  # (V, L)
+    var = sum(limb_sums(w * c * c) / ns - (limb_sums(w * c) / ns) ** 2 for c in rgb)  # (V, L)
     sd = jnp.sqrt(jnp.maximum(var, 0.0) / 3.0 + 1e-8)
     D = _weighted_mean(sd, (n >= 2).astype(w.dtype), empty=0.0)
     return D * D / (2.0 * sigma * sigma)

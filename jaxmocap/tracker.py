@@ -5,8 +5,9 @@ Pieces, in the order a frame goes through them:
 * **sources** — :class:`SequenceSource` (a sequence folder, :mod:`jaxmocap.io.sequence`) and :class:`VideoSource`
   (synchronised videos + a calibration, optional OpenPose keypoint folders and depth-map folders) give, per frame,
   the BGR images of every view, optional foreground masks, depth maps (metres) and 2D keypoints
-  (:class:`FrameData`). A frame that cannot be read raises :class:`BadFrame` (skipped with a warning or fatal,
-  by option); everything else that is wrong with the input raises :class:`~jaxmocap.errors.MocapInputError`.
+  (:class:`FrameData`) from ``read(t, masks=True, depth=True)``; the tracker asks only for the masks and depth
+  maps its features use (decoding two unused PNGs per view cost 7–8 ms per 640×480 stereo frame). A frame that
+  cannot be read raises :class:`BadFrame` (skipped with a warning or fatal, by option); everything else that is wrong with the input raises :class:`~jaxmocap.errors.MocapInputError`.
 * **features** — :class:`FeatureBuilder` runs :class:`jaxmocap.features.FeatureExtractor` (foreground from the
   sequence's masks, a median background, MOG2 or none; edges; distance transform; depth) and adds what the tracker
   itself uses: silhouette samples for the coverage term and the detection-driven proposal centre
@@ -54,6 +55,7 @@ import numpy as np
 
 from jaxmocap import body as body_mod
 from jaxmocap import camera, ik
+from jaxmocap import cues as cues_mod
 from jaxmocap import likelihood as lk
 from jaxmocap.annealing import Schedule
 from jaxmocap.errors import MocapInputError
@@ -232,8 +234,6 @@ def parse_cues(spec: str | Sequence | None) -> tuple[tuple[str, float], ...] | N
     """``"foreground,edge_distance:2,coverage"`` → ``(("foreground", 1.0), ("edge_distance", 2.0), …)``."""
     if spec is None:
         return None
-    from jaxmocap import cues as cues_mod
-
     items = spec.split(",") if isinstance(spec, str) else list(spec)
     out = []
     for it in items:
@@ -364,12 +364,49 @@ def _layer_index(layer):
     return getattr(layer, "index", layer)
 
 
+def partition_counts(
+    model: body_mod.BodyModel, filter_name: str, num_particles: int | Sequence[int]
+) -> tuple[int, ...] | int:
+    """Particle counts of ``filter_name``: for partitioned / hierarchical sampling one count per group of
+    :func:`partition_groups` (an int is used for every group), else the int itself. Raises ``ValueError`` for a
+    sequence given to another filter, a sequence of the wrong length, or a count below 2."""
+    if isinstance(num_particles, (int, np.integer)):
+        n = int(num_particles)
+        if n < 2:
+            raise ValueError("--particles must be at least 2")
+        if filter_name not in ("partitioned", "hierarchical"):
+            return n
+        return (n,) * len(partition_groups(model))
+    counts = tuple(int(c) for c in num_particles)
+    if filter_name not in ("partitioned", "hierarchical"):
+        raise ValueError(
+            f"one particle count per partition is for the partitioned / hierarchical filters, not {filter_name!r}"
+        )
+    groups = partition_groups(model)
+    if len(counts) != len(groups):
+        names = ", ".join(_group_label(model, g) for g in groups)
+        raise ValueError(
+            f"{model.name} has {len(groups)} partitions ({names}): give {len(groups)} particle counts, "
+            f"got {len(counts)}"
+        )
+    if min(counts) < 2:
+        raise ValueError("--particles must be at least 2 in every partition")
+    return counts
+
+
+def _group_label(model: body_mod.BodyModel, group: tuple[int, ...]) -> str:
+    """The name of the segment that owns the first DOF of ``group``."""
+    topo = model.topology
+    seg = next(s for s, dofs in enumerate(topo.segment_dofs) if group[0] in dofs)
+    return model.segment_names[seg]
+
+
 def make_filter(
     name: str,
     loglik: Callable,
     model: body_mod.BodyModel,
     std: np.ndarray,
-    num_particles: int,
+    num_particles: int | Sequence[int],
     num_layers: int,
     prior_mean: np.ndarray,
     prior_std: np.ndarray,
@@ -382,12 +419,15 @@ def make_filter(
     :func:`jaxmocap.annealing.corrected_beta`). ``fbapf*`` differ from ``apf`` only in the likelihood's per-layer
     cue weights (built by the caller). ``icondensation`` / ``iapf`` draw part of their particles around
     ``observation.center`` (when ``observation.valid``) and from the prior ``N(prior_mean, prior_std²)``.
-    ``partitioned`` / ``hierarchical`` split the DOFs by :func:`partition_groups`. ``hybrid`` is the APF with
+    ``partitioned`` / ``hierarchical`` split the DOFs by :func:`partition_groups`; ``num_particles`` is one count
+    for every partition or a sequence of one count per partition (Li & Kulić: torso 1000, head 200, arms 500, …;
+    the other filters take an int). ``hybrid`` is the APF with
     gradient moves (:data:`HYBRID_MOVE`) and ``apf-refine`` the APF whose estimate is refined by gradient ascent
     (:class:`jaxmocap.filters.hybrid.HybridAPF`); both need ``loglik`` differentiable in ``X``.
     """
     if name not in FILTERS:
         raise ValueError(f"unknown filter {name!r}; choose one of {', '.join(FILTERS)}")
+    counts = partition_counts(model, name, num_particles)
     dt = model.offset.dtype
     std = jnp.asarray(std, dt)
     span = np.asarray(model.upper) - np.asarray(model.lower)
@@ -410,13 +450,11 @@ def make_filter(
         )
     if name == "partitioned":
         groups = partition_groups(model)
-        return Partitioned(
-            lambda X, o, k: loglik(X, o, 0), std, groups, (num_particles,) * len(groups), **common
-        )
+        return Partitioned(lambda X, o, k: loglik(X, o, 0), std, groups, counts, **common)
     if name == "hierarchical":
         groups = partition_groups(model)
         sched = Schedule.deutscher(L, survival_target, diffusion_scales=scales)
-        return hierarchical(loglik, std, groups, (num_particles,) * len(groups), sched, **common)
+        return hierarchical(loglik, std, groups, counts, sched, **common)
     if name == "m-apf":
         sched = Schedule(
             kind="corrected", num_layers=L, diffusion_scales=scales, survival_target=survival_target
@@ -516,13 +554,15 @@ class SequenceSource:
         self.groundtruth = None if gt is None else gt.joints
         self.description = {"sequence": os.fspath(self.root)}
 
-    def read(self, t: int, masks: bool = True) -> FrameData:
+    def read(self, t: int, masks: bool = True, depth: bool = True) -> FrameData:
+        """Frame ``t``: BGR images, and the masks / depth maps the sequence has unless ``masks`` / ``depth`` is
+        False (each is a PNG to decode: a tracker that does not use them skips them)."""
         try:
-            images = [np.ascontiguousarray(v.rgb(t)[..., ::-1]) for v in self.seq.views]
+            images = [v.bgr(t) for v in self.seq.views]
             m = [v.mask(t) for v in self.seq.views] if (masks and self.has_masks) else None
             d = (
                 [_check_depth(v.path("depth", t), v.depth(t)) for v in self.seq.views]
-                if self.has_depth
+                if (depth and self.has_depth)
                 else None
             )
         except MocapInputError as e:
@@ -644,7 +684,9 @@ class VideoSource:
             "depth": [os.fspath(d) for d in depth or []],
         }
 
-    def read(self, t: int, masks: bool = True) -> FrameData:
+    def read(self, t: int, masks: bool = True, depth: bool = True) -> FrameData:
+        """Frame ``t`` of every video (BGR), with the depth maps unless ``depth`` is False (videos have no
+        masks: ``masks`` is accepted for the common interface)."""
         images = []
         for k, cap in enumerate(self.caps):
             if self.positions[k] != t:
@@ -656,7 +698,7 @@ class VideoSource:
                 raise BadFrame(f"{self.videos[k]}: frame {t} could not be decoded")
             images.append(frame)
         d = None
-        if self.depth_files is not None:
+        if self.depth_files is not None and depth:
             d = [
                 _read_depth_file(files[t], self.rig.image_size[k]) for k, files in enumerate(self.depth_files)
             ]
@@ -879,7 +921,7 @@ class TrackOptions:
     model: str | None = None
     body: str | None = None
     filter: str = "apf"
-    particles: int | None = None
+    particles: int | Sequence[int] | None = None
     layers: int | None = None
     cues: str | Sequence | None = None
     seed: int = 0
@@ -926,6 +968,8 @@ class TrackOptions:
         )
         keys += ("reinit_widen",)
         out = {k: getattr(self, k) for k in keys}
+        if isinstance(self.particles, (list, tuple)):
+            out["particles"] = [int(c) for c in self.particles]
         out["cues"] = None if self.cues is None else [list(c) for c in parse_cues(self.cues)]
         return out
 
@@ -1031,11 +1075,10 @@ class Tracker:
             raise ValueError(
                 f"the {o.filter} filter has no annealing layers (leave --layers out or set it to 1)"
             )
-        self.num_particles = (
-            o.particles if o.particles is not None else default_particles(self.model.name, o.filter)
-        )
-        if self.num_particles < 2:
-            raise ValueError("--particles must be at least 2")
+        n = o.particles if o.particles is not None else default_particles(self.model.name, o.filter)
+        counts = partition_counts(self.model, o.filter, n)  # raises on a bad count
+        #: particles (per layer), or a list of one count per partition
+        self.num_particles = list(counts) if isinstance(n, (list, tuple)) else int(n)
         self.std = diffusion_std(self.model, source.fps) * float(o.diffusion_scale)
         self._build_likelihood()
         self.trace_count = 0
@@ -1259,7 +1302,12 @@ class Tracker:
         self, t: int
     ) -> tuple[TrackObservation | None, np.ndarray | None, FrameData | None, str | None]:
         try:
-            fd = self.source.read(t)
+            # decode only what the features use: masks for --foreground mask, depth maps for a depth cue
+            fd = self.source.read(
+                t,
+                masks=self.features.foreground == "mask",
+                depth=any("depth" in cues_mod.REQUIRES.get(n, ()) for n, _ in self.cues),
+            )
         except BadFrame as e:
             if self.o.on_bad_frame == "stop":
                 raise MocapInputError(None, f"{e} (--on-bad-frame stop)") from None

@@ -289,6 +289,13 @@ def test_bad_options(capsys, videos, sequence, tmp_path):
     _one_error(code, err, "empty")
     code, err = _main(capsys, "track", sequence, "--init", tmp / "pose.npy", "--out", tmp / "o")
     _one_error(code, err, "pose.npy", "no such initial pose file")
+    code, err = _main(capsys, "track", sequence, "--particles", "10,20", "--out", tmp / "o")
+    _one_error(code, err, "one particle count per partition", "'apf'")
+    code, err = _main(
+        capsys, "track", sequence, "--model", "upper9", "--filter", "partitioned", "--particles", "10,20",
+        "--out", tmp / "o",
+    )  # fmt: skip
+    _one_error(code, err, "partitions (", "got 2")
     (tmp / "busy").mkdir()
     export.atomic_write_npz(tmp / "busy" / "poses.npz", {"x": np.zeros(1)})
     code, err = _main(capsys, "track", sequence, "--out", tmp / "busy")
@@ -377,3 +384,25 @@ def test_demo_command(capsys, tmp_path):
     cap = cv2.VideoCapture(str(tmp_path / "track" / "overlay_right.mp4"))
     assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 8
     cap.release()
+
+
+def test_particle_count_per_partition(capsys, sequence, tmp_path):
+    """``--particles`` with one count per partition (Li & Kulić's unequal counts) reaches the partitioned filter:
+    the carried set has the last partition's count and the summary lists every count."""
+    from jaxmocap import body, tracker
+
+    groups = tracker.partition_groups(body.upper9())
+    counts = [12 + 4 * k for k in range(len(groups))]
+    text = ",".join(map(str, counts))
+    out = tmp_path / "o"
+    code = cli.main(
+        ["track", str(sequence), "--model", "upper9", "--filter", "partitioned", "--particles", text,
+         "--cues", "foreground,coverage", "--frames", "0:3", "--out", str(out)]
+    )  # fmt: skip
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert "/".join(map(str, counts)) + " particles" in captured.out
+    summary = json.loads((out / "diagnostics.json").read_text())["summary"]
+    assert summary["particles"] == counts
+    with np.load(out / "resume.npz") as ck:
+        assert ck["particles"].shape[0] == counts[-1]

@@ -215,8 +215,8 @@ class _Blanked:
             setattr(self, k, getattr(source, k))
         self.body_path, self.groundtruth, self.description = source.body_path, source.groundtruth, {"test": 1}
 
-    def read(self, t, masks=True):
-        fd = self.s.read(t, masks)
+    def read(self, t, masks=True, depth=True):
+        fd = self.s.read(t, masks, depth)
         if t in self.blank and fd.masks is not None:
             fd = fd._replace(masks=[np.zeros_like(m) for m in fd.masks])
         return fd

@@ -288,7 +288,7 @@ class Pose2SimSource:
             img = cv2.copyMakeBorder(img, 0, 0, 0, W - img.shape[1], cv2.BORDER_REPLICATE)
         return cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
 
-    def read(self, t: int, masks: bool = True):
+    def read(self, t: int, masks: bool = True, depth: bool = True):
         from jaxmocap.tracker import BadFrame, FrameData
 
         f = self.frame_numbers[t]

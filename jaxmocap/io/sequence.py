@@ -226,6 +226,15 @@ def read_rgb(path: str | os.PathLike, size: tuple[int, int] | None = None) -> np
     return np.ascontiguousarray(img[..., ::-1])
 
 
+def read_bgr(path: str | os.PathLike, size: tuple[int, int] | None = None) -> np.ndarray:
+    """``(H, W, 3)`` uint8 in OpenCV's BGR order, as decoded (no channel flip: what OpenCV-based preprocessing
+    takes)."""
+    path = pathlib.Path(path)
+    img = _imread(path, cv2.IMREAD_COLOR)
+    _check_size(path, img, size)
+    return img
+
+
 def _read_8bit(path: pathlib.Path, size, what: str) -> np.ndarray:
     img = _imread(path, cv2.IMREAD_UNCHANGED)
     if img.dtype != np.uint8 or img.ndim != 2:
@@ -296,6 +305,9 @@ class ViewFrames:
 
     def read(self, channel: str, t: int) -> np.ndarray:
         """One image of ``channel`` at frame ``t`` (see the ``read_*`` functions for dtypes)."""
+        return _READERS[channel](self._checked_path(channel, t), self.size)
+
+    def _checked_path(self, channel: str, t: int) -> pathlib.Path:
         if channel not in self.channels:
             raise MocapInputError(
                 self.root / VIEWS / self.name / channel, "this sequence has no such channel"
@@ -303,7 +315,11 @@ class ViewFrames:
         t = int(t)
         if not 0 <= t < self.num_frames:
             raise IndexError(f"frame {t} out of range [0, {self.num_frames})")
-        return _READERS[channel](self.path(channel, t), self.size)
+        return self.path(channel, t)
+
+    def bgr(self, t: int) -> np.ndarray:
+        """The colour image of frame ``t`` in OpenCV's BGR order (:func:`read_bgr`)."""
+        return read_bgr(self._checked_path("rgb", t), self.size)
 
     def rgb(self, t: int) -> np.ndarray:
         return self.read("rgb", t)
