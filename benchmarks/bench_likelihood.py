@@ -12,7 +12,10 @@ Particles are drawn around a standing pose in view of both cameras. JAX: median 
 projection, facing test, nearest-pixel lookups and cue energies, vectorised over particles (float32), median of
 ``--numpy-repeats``; both are checked to agree on the first 64 particles before timing.
 
-    .venv/bin/python benchmarks/bench_likelihood.py [--particles 8192] [--repeats 7] [--quick]
+``upper14-iros-P300`` / ``-P150``: the IROS 2007 set with 300 / 150 flesh surface samples instead of 600 (the
+cost is linear in them). ``--per-cue`` times each IROS 2007 cue alone, with the geometry it needs.
+
+    .venv/bin/python benchmarks/bench_likelihood.py [--particles 8192] [--repeats 7] [--per-cue] [--quick]
 """
 
 from __future__ import annotations
@@ -33,13 +36,16 @@ from jaxmocap.synth import look_at
 W, H = 640, 480
 F = np.float32
 
+IROS_CUES = ("edge_distance", "colour_histogram", "blobs3d", "skin", "homogeneous_colour")
+#: name -> (body model, cues, target particles/s, flesh surface samples)
 CONFIGS = {
-    "upper14-iros": (
-        "upper14",
-        ("edge_distance", "colour_histogram", "blobs3d", "skin", "homogeneous_colour"),
-        100_000,
-    ),
-    "full25-lk": ("full25", ("edges", "foreground", "depth"), 50_000),
+    "upper14-iros": ("upper14", IROS_CUES, 100_000, 600),
+    "full25-lk": ("full25", ("edges", "foreground", "depth"), 50_000, 600),
+}
+#: the IROS 2007 set with fewer surface samples (the cost is linear in them): how far the default is from the target
+SAMPLE_SWEEP = {
+    "upper14-iros-P300": ("upper14", IROS_CUES, 100_000, 300),
+    "upper14-iros-P150": ("upper14", IROS_CUES, 100_000, 150),
 }
 
 
@@ -343,11 +349,11 @@ class NumpyLikelihood:
 
 
 def build(config: str, rng):
-    preset, names, target = CONFIGS[config]
+    preset, names, target, points = {**CONFIGS, **SAMPLE_SWEEP}[config]
     model = getattr(body, preset)()
     rig = stereo_rig()
     obs = observation(rig, rng)
-    lik = L.Likelihood.create(model, rig, [L.Cue(n) for n in names])
+    lik = L.Likelihood.create(model, rig, [L.Cue(n) for n in names], surface_points=points)
     if any(L.Cue(n).spec.reference for n in names):
         lik = lik.with_references(model.rest_pose, obs)
     return model, rig, obs, lik, target
@@ -392,16 +398,49 @@ def run(config, n, repeats, np_repeats, rng):
     )
 
 
+def per_cue(config: str, n: int, repeats: int, rng) -> list[tuple[str, float]]:
+    """``(cue, median seconds)`` of the jitted likelihood of each cue of ``config`` alone (same particles and
+    surface samples; each includes the FK / projection that cue needs, which the full set shares), then of the
+    full set."""
+    model, rig, obs, lik, _ = build(config, rng)
+    X = jnp.asarray(particles(model, n, rng))
+    points = lik.surface.local.shape[0]
+    out = []
+    for cue in lik.cues:
+        one = L.Likelihood.create(model, rig, [cue], surface_points=points)
+        if cue.spec.reference:
+            one = one.with_references(model.rest_pose, obs)
+        f = jax.jit(one.batch)
+        f(X, obs, 0).block_until_ready()
+        out.append((cue.name, _time(lambda f=f: f(X, obs, 0).block_until_ready(), repeats)[0]))
+    f = jax.jit(lik.batch)
+    f(X, obs, 0).block_until_ready()
+    out.append(("all together", _time(lambda: f(X, obs, 0).block_until_ready(), repeats)[0]))
+    return out
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--particles", type=int, default=8192)
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--numpy-repeats", type=int, default=3)
-    ap.add_argument("--configs", nargs="*", default=list(CONFIGS))
+    ap.add_argument(
+        "--configs",
+        nargs="*",
+        default=None,
+        help=f"default: all of {[*CONFIGS, *SAMPLE_SWEEP]} (quick: the first two)",
+    )
     ap.add_argument("--quick", action="store_true", help="1024 particles, 3 repeats, 1 NumPy repeat")
+    ap.add_argument(
+        "--per-cue",
+        action="store_true",
+        help="also time each cue of upper14-iros alone (where its time goes)",
+    )
     a = ap.parse_args(argv)
     if a.quick:
         a.particles, a.repeats, a.numpy_repeats = 1024, 3, 1
+    if a.configs is None:
+        a.configs = list(CONFIGS) if a.quick else [*CONFIGS, *SAMPLE_SWEEP]
     rng = np.random.default_rng(0)
     print(f"jax {jax.__version__}, {jax.devices()[0].platform}, load average {os.getloadavg()[0]:.2f}")
     print(
@@ -417,6 +456,11 @@ def main(argv=None):
             f"{r['numpy_s'] / r['jax_s']:.1f}× | {r['target']:,} | {r['agree'][0]:.1e} / {r['agree'][1]:.1e} |",
             flush=True,
         )
+    if a.per_cue:
+        print(f"\nupper14-iros, each cue alone ({a.particles} particles, with the geometry that cue needs):")
+        print("| cue | median ms | particles/s |\n|---|---|---|")
+        for name, sec in per_cue("upper14-iros", a.particles, a.repeats, rng):
+            print(f"| {name} | {sec * 1e3:.1f} | {a.particles / sec:,.0f} |", flush=True)
     print(f"load average after: {os.getloadavg()[0]:.2f}")
 
 

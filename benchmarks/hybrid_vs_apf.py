@@ -31,7 +31,7 @@ many forward evaluations ("likelihood-evaluation equivalents"); the table also g
 Usage::
 
     .venv/bin/python benchmarks/hybrid_vs_apf.py            # writes benchmarks/results/hybrid_vs_apf.{md,png}
-    .venv/bin/python benchmarks/hybrid_vs_apf.py --quick    # 1 run of 10 frames, two sizes; writes nothing
+    .venv/bin/python benchmarks/hybrid_vs_apf.py --quick    # 1 run of 10 frames, one size per filter; writes nothing
 """
 
 from __future__ import annotations
@@ -212,7 +212,7 @@ def main(argv=None) -> str:
     cfg = Config()
     if args.quick:
         cfg = cfg._replace(
-            runs=1, frames="150:190", apf_particles=(25, 100), hybrid_particles=(10,), refine_particles=(25,)
+            runs=1, frames="150:190", apf_particles=(25,), hybrid_particles=(10,), refine_particles=(25,)
         )
     if args.runs:
         cfg = cfg._replace(runs=args.runs)

@@ -91,12 +91,7 @@ def _synth(quick: bool) -> str:
 
 
 def _likelihood(quick: bool) -> str:
-    if not (HERE / "bench_likelihood.py").exists():
-        return "_`benchmarks/bench_likelihood.py` is not present in this checkout._"
-    m = _module("bench_likelihood")
-    if hasattr(m, "run_benchmark"):  # ``run_benchmark(quick) -> markdown``, when the module offers it
-        return m.run_benchmark(quick)
-    return _captured(m.main, ["--quick"] if quick else [])
+    return _captured(_module("bench_likelihood").main, ["--quick"] if quick else ["--per-cue"])
 
 
 def _iros(quick: bool) -> str:

@@ -329,15 +329,19 @@ def coverage_energy(
     ua, za = camera.project_with_depth(rig, a)  # (V, S, 2), (V, S)
     ub, zb = camera.project_with_depth(rig, b)
     f = rig.K[:, 0, 0][:, None]
-    pa = f * ra[None] / jnp.maximum(za, 1e-3)
-    pb = f * rb[None] / jnp.maximum(zb, 1e-3)
-    d = ub - ua
-    q = uv[:, :, None, :] - ua[:, None, :, :]  # (V, M, S, 2)
-    L2 = jnp.maximum(jnp.sum(d * d, axis=-1), 1e-9)[:, None, :]
-    tau = jnp.clip(jnp.sum(q * d[:, None], axis=-1) / L2, 0.0, 1.0)
-    c = q - tau[..., None] * d[:, None]
-    dist = jnp.sqrt(jnp.sum(c * c, axis=-1) + 1e-12) - (pa[:, None] + tau * (pb - pa)[:, None])
-    dmin = jnp.maximum(jnp.min(dist, axis=-1), 0.0)
+    pa = (f * ra[None] / jnp.maximum(za, 1e-3))[..., None]  # (V, S, 1)
+    pb = (f * rb[None] / jnp.maximum(zb, 1e-3))[..., None]
+    # (V, S, M) arrays, one coordinate at a time: the samples on the minor axis and the minimum over capsules
+    # across rows vectorise on a CPU (with (V, M, S, 2) and reductions over the short minor axes: 2× slower)
+    ax, ay = ua[..., 0:1], ua[..., 1:2]
+    dx, dy = ub[..., 0:1] - ax, ub[..., 1:2] - ay
+    inv_len2 = 1.0 / jnp.maximum(dx * dx + dy * dy, 1e-9)
+    qx = uv[:, None, :, 0] - ax
+    qy = uv[:, None, :, 1] - ay
+    tau = jnp.clip((qx * dx + qy * dy) * inv_len2, 0.0, 1.0)
+    cx, cy = qx - tau * dx, qy - tau * dy
+    dist = jnp.sqrt(cx * cx + cy * cy + 1e-12) - (pa + tau * (pb - pa))
+    dmin = jnp.maximum(jnp.min(dist, axis=1), 0.0)  # (V, M)
     e = jnp.minimum(dmin / d_max[:, None], 1.0)
     return jnp.sum(w * e, axis=-1) / jnp.maximum(jnp.sum(w, axis=-1), 1.0)
 
@@ -754,11 +758,17 @@ class FeatureBuilder:
         self.foreground = foreground
         self.source = source
         names = set(cue_names)
+        reads = {f for n in names for f in cues_mod.REQUIRES.get(n, ())}
+        blobs = (
+            "blobs3d" in names
+        )  # IROS 2007's 3D head / hand blobs: skin blobs matched across the first pair
         cfg = FeatureConfig(
             foreground={"mask": "none", "median": "static", "mog2": "mog2", "none": "none"}[foreground],
             edges=bool(names & {"edges", "edge_fraction"}),
             edge_dt="edge_distance" in names,
-            skin=None,
+            skin="rgb" if ("skin" in reads or blobs) else None,
+            rgb="rgb" in reads,
+            blobs=blobs,
             downsample=int(downsample),
         )
         self.extractor = _Extractor(source.rig, cfg)
@@ -1125,9 +1135,10 @@ class Tracker:
         cov_lam = jnp.asarray(table[:, cov[0][0]] * cov[0][1], jnp.float32) if cov else None
         rj = rig.to_jax(jnp.float32)
         d_max = jnp.asarray([max(1.0, COVERAGE_DMAX * w) for w, _ in rig.image_size], jnp.float32)
-        model, lik, L = self.model, self.likelihood, self.layers
+        model, L = self.model, self.layers
 
         def loglik(X, tobs, layer):
+            lik = self.likelihood  # read when traced: after the first frame's colour references are set
             l = jnp.clip(jnp.asarray(_layer_index(layer)), 0, L - 1)
             ll = jnp.zeros(X.shape[0], X.dtype) if lik is None else lik.batch(X, tobs.image, l)
             if cov_lam is not None:
@@ -1138,6 +1149,15 @@ class Tracker:
             return jnp.where(jnp.isfinite(ll), ll, -jnp.inf)
 
         self.loglik = loglik
+
+    def _set_references(self, x0: np.ndarray, first: TrackObservation) -> None:
+        """Reference data of the colour cues (histograms, templates) from the first tracked frame at ``x0``
+        (:meth:`jaxmocap.likelihood.Likelihood.with_references`); a resumed run recomputes them from the same
+        frame and pose, so that it continues with the same likelihood."""
+        lik = self.likelihood
+        if lik is not None and any(c.spec.reference for c in lik.cues):
+            dt = self.model.offset.dtype
+            self.likelihood = lik.with_references(jnp.asarray(x0, dt), first.image)
 
     def _make_filter(self, x0: np.ndarray):
         self.filter = make_filter(
@@ -1363,6 +1383,8 @@ class Tracker:
             ck is None
         ):  # a fresh run: everything that can fail on the input fails before any output is written
             start, pending, skipped, x0, spread, how = self._first_frame()
+            self._ref_frame = frames[start]
+            self._set_references(x0, pending[0])
             self._make_filter(x0)
             t0 = frames[start]
             state = self.filter.init(
@@ -1377,6 +1399,14 @@ class Tracker:
                 )
             start, skipped, how = frames.index(done) + 1, [], None
             x0 = np.asarray(ck["x0"], np.float64)
+            self._ref_frame = int(ck["ref_frame"]) if "ref_frame" in ck else frames[0]
+            if self.likelihood is not None and any(c.spec.reference for c in self.likelihood.cues):
+                first = self._observe(self._ref_frame)[0]
+                if first is None:
+                    raise MocapInputError(
+                        None, f"frame {self._ref_frame} of the colour references is unreadable"
+                    )
+                self._set_references(x0, first)
             self._make_filter(x0)
             state = State(*(jnp.asarray(ck[k], dt) for k in ("particles", "log_weights", "estimate")))
             hist = [
@@ -1529,6 +1559,7 @@ class Tracker:
                 "hist_states": np.asarray([x for _, x in hist], np.float64).reshape(len(hist), D),
                 "last_good": np.asarray(last_good),
                 "x0": np.asarray(x0),
+                "ref_frame": np.asarray(self._ref_frame),
                 "q_ref": np.asarray(q_ref),
                 "q_hist": np.asarray(q_hist, np.float64),
                 "lost_run": np.asarray(lost_run),

@@ -397,7 +397,7 @@ def test_particle_count_per_partition(capsys, sequence, tmp_path):
     out = tmp_path / "o"
     code = cli.main(
         ["track", str(sequence), "--model", "upper9", "--filter", "partitioned", "--particles", text,
-         "--cues", "foreground,coverage", "--frames", "0:3", "--out", str(out)]
+         "--cues", "coverage", "--frames", "0:2", "--out", str(out)]
     )  # fmt: skip
     captured = capsys.readouterr()
     assert code == 0, captured.err

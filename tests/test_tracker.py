@@ -238,3 +238,53 @@ def test_track_loss_is_detected_and_reinitialised(sequence, tmp_path):
     assert [r["reinit_source"] for r in recs if r["reinitialised"]] == ["last_estimate", "last_estimate"]
     assert summary["reinitialisations"] == 2 and summary["lost_frames"] == 2
     assert not recs[7]["lost"] and np.isfinite(recs[8]["quality"])
+
+
+class _Interrupting(_Blanked):
+    """A source that raises KeyboardInterrupt (Ctrl-C) when frame ``stop`` is read."""
+
+    def __init__(self, source, stop):
+        super().__init__(source, blank=())
+        self.stop = stop
+
+    def read(self, t, masks=True, depth=True):
+        if t == self.stop:
+            raise KeyboardInterrupt
+        return super().read(t, masks, depth)
+
+
+@pytest.mark.slow
+def test_colour_cues_track_with_first_frame_references_and_resume(sequence, tmp_path):
+    """The IROS 2007 cue set (edges, colour histograms, skin, 3D blobs, homogeneous colour) and Li & Kulić's colour
+    template run in the tracker: the features include the colour / skin / blob maps, the colour references come
+    from the first frame at the initial pose (so the template energy of that pose in that frame is 0), and a run
+    interrupted by Ctrl-C and resumed recomputes the same references and ends with the same poses."""
+    cues = (
+        "foreground,edge_distance,colour_histogram,skin,blobs3d,homogeneous_colour,colour_template,coverage"
+    )
+    opts = dict(model="upper14", filter="apf", cues=cues, particles=30, layers=2, frames="0:4", seed=3)
+    full = tracker.Tracker(
+        tracker.SequenceSource(sequence), tmp_path / "full", tracker.TrackOptions(**opts), quiet=True
+    )
+    full.run()
+    lik = full.likelihood
+    names = [c.name for c in lik.cues]
+    assert all(lik.references[names.index(n)] is not None for n in ("colour_histogram", "colour_template"))
+    first = full._observe(0)[0].image
+    for f in ("rgb", "skin", "blobs3d"):
+        assert first.has(f), f
+    x0 = jnp.asarray(np.load(tmp_path / "full" / "resume.npz")["x0"], jnp.float32)
+    e = lik.energies(x0, first)
+    assert float(e[names.index("colour_template")]) == pytest.approx(0.0, abs=1e-5)  # √(… + ε) per sample
+
+    part = tmp_path / "part"
+    src = _Interrupting(tracker.SequenceSource(sequence), stop=3)
+    with pytest.raises(KeyboardInterrupt):
+        tracker.Tracker(src, part, tracker.TrackOptions(**opts), quiet=True).run()
+    done = export.load_poses(part)["frame_index"]
+    assert 0 < len(done) < 4
+    src = _Interrupting(tracker.SequenceSource(sequence), stop=-1)  # the same input description, no Ctrl-C
+    tracker.Tracker(src, part, tracker.TrackOptions(**opts, resume=True), quiet=True).run()
+    a, b = export.load_poses(tmp_path / "full"), export.load_poses(part)
+    np.testing.assert_array_equal(a["frame_index"], b["frame_index"])
+    np.testing.assert_allclose(a["state"], b["state"], rtol=0, atol=1e-6)
