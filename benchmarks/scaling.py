@@ -11,6 +11,9 @@ particles = the rest pose + N(0, 0.05²) noise. Every point is the median of ``r
   survival-rate rule) with L layers: L likelihood batches + resampling + diffusion;
 * views V ∈ {1, 2, 4} (N = 1000, 320×240) and image size (N = 1000, 2 views).
 
+Peak memory of each point: what XLA's compiled program allocates (``Compiled.memory_analysis()``: arguments +
+outputs + temporaries − aliased), the device memory the call needs beyond the Python process itself.
+
     .venv/bin/python benchmarks/scaling.py [--quick] [--repeats 7]
 
 Writes ``benchmarks/results/scaling.png`` and ``benchmarks/results/scaling.md`` (not with ``--quick``).
@@ -76,6 +79,13 @@ def observation(rig: camera.Rig, seed: int = 0):
     return make_observation(rig, foreground=fg, edge_dt=dt)
 
 
+def _peak_mb(jitted, *args) -> float:
+    """Megabytes of arguments + outputs + temporaries (− aliased) of ``jitted`` compiled for ``args``."""
+    m = jitted.lower(*args).compile().memory_analysis()
+    total = m.argument_size_in_bytes + m.output_size_in_bytes + m.temp_size_in_bytes - m.alias_size_in_bytes
+    return total / 2**20
+
+
 def _median(fn, repeats: int) -> float:
     jax.block_until_ready(fn())  # compile
     ts = []
@@ -115,7 +125,10 @@ def run(quick: bool = False, repeats: int = 7) -> dict:
     for n in ns:
         X = _particles(model, n)
         s = base[n] = _median(lambda X=X: f(X, obs2), repeats)
-        rows.append({"axis": "particles", "value": n, "seconds": s, "per_particle_us": s / n * 1e6})
+        mem = base[("mb", n)] = _peak_mb(f, X, obs2)
+        rows.append(
+            {"axis": "particles", "value": n, "seconds": s, "per_particle_us": s / n * 1e6, "mb": mem}
+        )
     n_l = 20 if quick else 200
     for L in layers:
         likL = _likelihood(model, rig2, L, pts)
@@ -132,7 +145,10 @@ def run(quick: bool = False, repeats: int = 7) -> dict:
         state = flt.init(jax.random.key(0), model.rest_pose, jnp.asarray(tracker.diffusion_std(model)))
         step = jax.jit(flt.step)
         s = _median(lambda step=step, state=state: step(jax.random.key(1), state, obs2)[0].particles, repeats)
-        rows.append({"axis": "layers", "value": L, "seconds": s, "per_particle_us": s / (n_l * L) * 1e6})
+        mem = _peak_mb(step, jax.random.key(1), state, obs2)
+        rows.append(
+            {"axis": "layers", "value": L, "seconds": s, "per_particle_us": s / (n_l * L) * 1e6, "mb": mem}
+        )
     X = _particles(model, n_fixed)
     for V in views:
         if V == 2 and n_fixed in base:
@@ -142,6 +158,7 @@ def run(quick: bool = False, repeats: int = 7) -> dict:
                     "value": V,
                     "seconds": base[n_fixed],
                     "per_particle_us": base[n_fixed] / n_fixed * 1e6,
+                    "mb": base[("mb", n_fixed)],
                 }
             )
             continue
@@ -150,12 +167,21 @@ def run(quick: bool = False, repeats: int = 7) -> dict:
         likV = _likelihood(model, rig, 1, pts)
         fV = jax.jit(lambda X, o, likV=likV: likV.batch(X, o, 0))
         s = _median(lambda fV=fV, o=o: fV(X, o), repeats)
-        rows.append({"axis": "views", "value": V, "seconds": s, "per_particle_us": s / n_fixed * 1e6})
+        mem = _peak_mb(fV, X, o)
+        rows.append(
+            {"axis": "views", "value": V, "seconds": s, "per_particle_us": s / n_fixed * 1e6, "mb": mem}
+        )
     for size in sizes:
         if size == (320, 240) and n_fixed in base:
             s = base[n_fixed]
             rows.append(
-                {"axis": "image size", "value": "320x240", "seconds": s, "per_particle_us": s / n_fixed * 1e6}
+                {
+                    "axis": "image size",
+                    "value": "320x240",
+                    "seconds": s,
+                    "per_particle_us": s / n_fixed * 1e6,
+                    "mb": base[("mb", n_fixed)],
+                }
             )
             continue
         rig = ring_rig(2, size)
@@ -169,32 +195,35 @@ def run(quick: bool = False, repeats: int = 7) -> dict:
                 "value": f"{size[0]}x{size[1]}",
                 "seconds": s,
                 "per_particle_us": s / n_fixed * 1e6,
+                "mb": _peak_mb(fS, X, o),
             }
         )
     return {"rows": rows, "n_layers": n_l, "n_fixed": n_fixed, "repeats": repeats}
 
 
-def _growth(rows, axis) -> str:
+def _growth(rows, axis, key="seconds") -> str:
     r = [x for x in rows if x["axis"] == axis]
     if len(r) < 2 or axis == "image size":
         return ""
     v = np.log([float(x["value"]) for x in r])
-    t = np.log([x["seconds"] for x in r])
+    t = np.log([x[key] for x in r])
     k = np.polyfit(v, t, 1)[0]
-    return f"time ∝ {axis}^{k:.2f}"
+    return f"{'time' if key == 'seconds' else 'memory'} ∝ {axis}^{k:.2f}"
 
 
 def to_markdown(res: dict) -> str:
     rows = res["rows"]
     lines = [
-        "| sweep | value | median time (ms) | µs per particle-evaluation |",
-        "|---|---|---|---|",
+        "| sweep | value | median time (ms) | µs per particle-evaluation | peak memory (MB) |",
+        "|---|---|---|---|---|",
     ]
     for r in rows:
         lines.append(
-            f"| {r['axis']} | {r['value']} | {r['seconds'] * 1e3:.2f} | {r['per_particle_us']:.2f} |"
+            f"| {r['axis']} | {r['value']} | {r['seconds'] * 1e3:.2f} | {r['per_particle_us']:.2f} | "
+            f"{r['mb']:.1f} |"
         )
-    fits = [g for g in (_growth(rows, a) for a in ("particles", "layers", "views")) if g]
+    axes = ("particles", "layers", "views")
+    fits = [g for g in [_growth(rows, a) for a in axes] + [_growth(rows, a, "mb") for a in axes] if g]
     note = (
         f"\nFixed: 2 views, 320×240, N = {res['n_fixed']} (views / size sweeps), N = {res['n_layers']} per layer "
         f"(layers sweep: one APF step), full25, cues foreground + edge_distance; median of {res['repeats']} after "
@@ -210,9 +239,10 @@ def plot(res: dict, path: pathlib.Path) -> None:
     import matplotlib.pyplot as plt
 
     rows = res["rows"]
-    fig, axs = plt.subplots(1, 4, figsize=(16, 3.6))
-    for ax, axis, xlabel in zip(
-        axs,
+    fig, axs = plt.subplots(2, 4, figsize=(16, 6.4))
+    for ax, mem_ax, axis, xlabel in zip(
+        axs[0],
+        axs[1],
         ("particles", "layers", "views", "image size"),
         ("particles N", f"annealing layers L (APF step, N = {res['n_layers']})", "views", "image size"),
         strict=True,
@@ -220,15 +250,17 @@ def plot(res: dict, path: pathlib.Path) -> None:
         r = [x for x in rows if x["axis"] == axis]
         xs = list(range(len(r))) if axis == "image size" else [x["value"] for x in r]
         ax.plot(xs, [x["seconds"] * 1e3 for x in r], "o-")
-        if axis == "particles":
-            ax.set_xscale("log")
-            ax.set_yscale("log")
-        if axis == "image size":
-            ax.set_xticks(xs, [x["value"] for x in r])
-        ax.set_xlabel(xlabel)
-        ax.set_ylabel("ms")
-        ax.grid(alpha=0.3)
-    fig.suptitle("Likelihood cost (full25, foreground + edge distance, CPU)")
+        mem_ax.plot(xs, [x["mb"] for x in r], "s-", color="C1")
+        for a, unit in ((ax, "ms"), (mem_ax, "peak MB")):
+            if axis == "particles":
+                a.set_xscale("log")
+                a.set_yscale("log")
+            if axis == "image size":
+                a.set_xticks(xs, [x["value"] for x in r])
+            a.set_xlabel(xlabel)
+            a.set_ylabel(unit)
+            a.grid(alpha=0.3)
+    fig.suptitle("Likelihood cost: time (top) and peak memory of the compiled call (bottom); full25, CPU")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=90)
