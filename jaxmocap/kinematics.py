@@ -279,29 +279,6 @@ def segment_poses(
     return R_out, t_out
 
 
-def per_point(a: jnp.ndarray, segment_of_point: Sequence[int] | np.ndarray, axis: int) -> jnp.ndarray:
-    """``a`` indexed along ``axis`` by the static ``segment_of_point`` (``P`` segment indices): ``a[..., s(p), ...]``.
-
-    Points are stored segment by segment, so the index is a few runs of one value: each run is a broadcast of one
-    slice and the runs are concatenated, which XLA on CPU runs faster than a gather with constant indices
-    (measured 17 % of the whole IROS 2007 likelihood, ``benchmarks/bench_likelihood.py``). An index of more than
-    64 runs is a plain gather.
-    """
-    seg = np.asarray(segment_of_point, dtype=np.int32).reshape(-1)
-    axis = axis % a.ndim
-    starts = np.flatnonzero(np.r_[True, seg[1:] != seg[:-1]]) if seg.size else np.zeros(0, int)
-    if seg.size == 0 or starts.size > 64:
-        return jnp.take(a, jnp.asarray(seg), axis=axis)
-    ends = np.r_[starts[1:], seg.size]
-    parts = []
-    for s0, s1 in zip(starts, ends, strict=True):
-        piece = jax.lax.index_in_dim(a, int(seg[s0]), axis, keepdims=True)
-        shape = list(piece.shape)
-        shape[axis] = int(s1 - s0)
-        parts.append(jnp.broadcast_to(piece, shape))
-    return parts[0] if len(parts) == 1 else jnp.concatenate(parts, axis)
-
-
 def transform_points(
     R: jnp.ndarray, t: jnp.ndarray, points: jnp.ndarray, segment_of_point: Sequence[int] | np.ndarray
 ) -> jnp.ndarray:
@@ -319,8 +296,9 @@ def transform_points(
     consumer (a projection reads each coordinate several times) and recomputes it there — measured 3.7× slower
     for FK + projection (``benchmarks/bench_kinematics.py``).
     """
-    Rp = per_point(R, segment_of_point, axis=-3)
-    tp = per_point(t, segment_of_point, axis=-2)
+    seg = np.asarray(segment_of_point, dtype=np.int32)
+    Rp = R[..., seg, :, :]
+    tp = t[..., seg, :]
     px, py, pz = points[:, 0], points[:, 1], points[:, 2]
     out = [Rp[..., i, 0] * px + Rp[..., i, 1] * py + Rp[..., i, 2] * pz + tp[..., i] for i in range(3)]
     return jax.lax.optimization_barrier(jnp.stack(out, -1))

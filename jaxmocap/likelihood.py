@@ -249,8 +249,9 @@ class Likelihood:
             if "facing" in needs:
                 # n·(c_v − X) > 0 in the segment frame: n_p·c_v,s(p) − n_p·p_p with c_v,s = R_sᵀ (c_v − t_s) the
                 # camera centre in segment s's frame (V·S vectors per particle instead of P rotated normals)
+                seg = np.asarray(self.surface.segment, np.int32)
                 n, p = self.surface.normal, self.surface.local
-                cl = kinematics.per_point(pose["camera_local"], self.surface.segment, axis=1)  # (V, P, 3)
+                cl = pose["camera_local"][:, seg]  # (V, P, 3)
                 nc = cl[..., 0] * n[:, 0] + cl[..., 1] * n[:, 1] + cl[..., 2] * n[:, 2]
                 npp = n[:, 0] * p[:, 0] + n[:, 1] * p[:, 1] + n[:, 2] * p[:, 2]
                 g["surface_facing"] = (nc > npp) & (z > 0)

@@ -335,10 +335,10 @@ def coverage_energy(
     # across rows vectorise on a CPU (with (V, M, S, 2) and reductions over the short minor axes: 2× slower)
     ax, ay = ua[..., 0:1], ua[..., 1:2]
     dx, dy = ub[..., 0:1] - ax, ub[..., 1:2] - ay
-    inv_len2 = 1.0 / jnp.maximum(dx * dx + dy * dy, 1e-9)
+    len2 = jnp.maximum(dx * dx + dy * dy, 1e-9)
     qx = uv[:, None, :, 0] - ax
     qy = uv[:, None, :, 1] - ay
-    tau = jnp.clip((qx * dx + qy * dy) * inv_len2, 0.0, 1.0)
+    tau = jnp.clip((qx * dx + qy * dy) / len2, 0.0, 1.0)
     cx, cy = qx - tau * dx, qy - tau * dy
     dist = jnp.sqrt(cx * cx + cy * cy + 1e-12) - (pa + tau * (pb - pa))
     dmin = jnp.maximum(jnp.min(dist, axis=1), 0.0)  # (V, M)

@@ -157,21 +157,3 @@ def test_transform_points_matches_per_point_products():
     out = np.asarray(kinematics.transform_points(R, t, pts, seg))
     ref = np.einsum("npij,pj->npi", np.asarray(R)[:, seg], np.asarray(pts)) + np.asarray(t)[:, seg]
     np.testing.assert_allclose(out, ref, atol=1e-5)
-
-
-@pytest.mark.parametrize(
-    "seg",
-    [
-        np.repeat([0, 2, 1, 3], [5, 1, 7, 3]),  # contiguous runs, out of order
-        np.array([1, 0, 1, 0, 2, 2]),  # runs that repeat
-        np.random.default_rng(0).integers(0, 4, 300),  # > 64 runs: the gather path
-        np.zeros(0, np.int32),
-    ],
-)
-def test_per_point_equals_fancy_indexing(seg):
-    a = jnp.asarray(np.random.default_rng(1).normal(size=(2, 4, 3, 3)), jnp.float32)
-    np.testing.assert_array_equal(kinematics.per_point(a, seg, axis=1), np.asarray(a)[:, seg])
-    np.testing.assert_array_equal(kinematics.per_point(a, seg, axis=-3), np.asarray(a)[:, seg])
-    b = a[0]
-    g = jax.grad(lambda b: jnp.sum(kinematics.per_point(b, seg, 0) ** 2))(b)
-    np.testing.assert_allclose(g, 2 * np.asarray(b) * np.bincount(seg, minlength=4)[:, None, None], rtol=1e-6)
