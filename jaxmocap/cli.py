@@ -455,7 +455,7 @@ def _add_tracking_commands(sub) -> None:
         "--particles",
         type=_particle_counts,
         help="particles (per layer for the annealed filters); partitioned / hierarchical: one count, or one per "
-        "partition separated by commas (full25: torso, head, arms, legs, e.g. 1000,200,500,500,500,500)",
+        "partition separated by commas (full25: torso, head, arms, legs, e.g. 1000,200,350,350,350,350)",
     )
     tr.add_argument("--layers", type=int, help="annealing layers (default 5; 2 per level for hierarchical)")
     tr.add_argument(

@@ -7,11 +7,13 @@ Pieces, in the order a frame goes through them:
   the BGR images of every view, optional foreground masks, depth maps (metres) and 2D keypoints
   (:class:`FrameData`) from ``read(t, masks=True, depth=True)``; the tracker asks only for the masks and depth
   maps its features use (decoding two unused PNGs per view cost 7–8 ms per 640×480 stereo frame). A frame that
-  cannot be read raises :class:`BadFrame` (skipped with a warning or fatal, by option); everything else that is wrong with the input raises :class:`~jaxmocap.errors.MocapInputError`.
+  cannot be read raises :class:`BadFrame` (skipped with a warning or fatal, by option); everything else that is
+  wrong with the input raises :class:`~jaxmocap.errors.MocapInputError`.
 * **features** — :class:`FeatureBuilder` runs :class:`jaxmocap.features.FeatureExtractor` (foreground from the
-  sequence's masks, a median background, MOG2 or none; edges; distance transform; depth) and adds what the tracker
-  itself uses: silhouette samples for the coverage term and the detection-driven proposal centre
-  (:class:`TrackObservation`).
+  sequence's masks, a median background, MOG2 or none; edges; distance transform; depth; the colour map, skin
+  probability and triangulated skin blobs when a cue reads them) and adds what the tracker itself uses: silhouette
+  samples for the coverage term and the detection-driven proposal centre (:class:`TrackObservation`). The colour
+  cues' references (ROI histograms, colour templates) come from the first tracked frame at the initial pose.
 * **likelihood** — :class:`jaxmocap.likelihood.Likelihood` over the image cues, plus the tracker's **coverage**
   term (:func:`coverage_energy`): the model-on-silhouette cues (``foreground``, Li & Kulić's ``depth``) do not
   penalise a limb hidden in front of the torso, so ``M`` samples of the observed silhouette per view must each be
@@ -424,8 +426,8 @@ def make_filter(
     cue weights (built by the caller). ``icondensation`` / ``iapf`` draw part of their particles around
     ``observation.center`` (when ``observation.valid``) and from the prior ``N(prior_mean, prior_std²)``.
     ``partitioned`` / ``hierarchical`` split the DOFs by :func:`partition_groups`; ``num_particles`` is one count
-    for every partition or a sequence of one count per partition (Li & Kulić: torso 1000, head 200, arms 500, …;
-    the other filters take an int). ``hybrid`` is the APF with
+    for every partition or a sequence of one count per partition (Li & Kulić on ``full25``: torso 1000, head 200,
+    each arm and leg 350; the other filters take an int). ``hybrid`` is the APF with
     gradient moves (:data:`HYBRID_MOVE`) and ``apf-refine`` the APF whose estimate is refined by gradient ascent
     (:class:`jaxmocap.filters.hybrid.HybridAPF`); both need ``loglik`` differentiable in ``X``.
     """
