@@ -13,9 +13,10 @@ projection, facing test, nearest-pixel lookups and cue energies, vectorised over
 ``--numpy-repeats``; both are checked to agree on the first 64 particles before timing.
 
 ``upper14-iros-P300`` / ``-P150``: the IROS 2007 set with 300 / 150 flesh surface samples instead of 600 (the
-cost is linear in them). ``--per-cue`` times each IROS 2007 cue alone, with the geometry it needs.
+cost is linear in them). ``--per-cue`` times each IROS 2007 cue alone, with the geometry it needs. ``--sweep``
+times the first two configurations at 10², 10³, 10⁴ and 10⁵ particles, each against NumPy.
 
-    .venv/bin/python benchmarks/bench_likelihood.py [--particles 8192] [--repeats 7] [--per-cue] [--quick]
+    .venv/bin/python benchmarks/bench_likelihood.py [--particles 8192] [--repeats 7] [--per-cue] [--sweep] [--quick]
 """
 
 from __future__ import annotations
@@ -432,6 +433,11 @@ def main(argv=None):
     )
     ap.add_argument("--quick", action="store_true", help="1024 particles, 3 repeats, 1 NumPy repeat")
     ap.add_argument(
+        "--sweep",
+        action="store_true",
+        help="also time upper14-iros and full25-lk at 10^2 ... 10^5 particles against NumPy (1 NumPy repeat)",
+    )
+    ap.add_argument(
         "--per-cue",
         action="store_true",
         help="also time each cue of upper14-iros alone (where its time goes)",
@@ -456,6 +462,19 @@ def main(argv=None):
             f"{r['numpy_s'] / r['jax_s']:.1f}× | {r['target']:,} | {r['agree'][0]:.1e} / {r['agree'][1]:.1e} |",
             flush=True,
         )
+    if a.sweep:
+        print("\nThroughput against the particle count (JAX: median of the repeats; NumPy: one run):")
+        print(
+            "| config | particles | JAX particles/s | NumPy particles/s | speed-up |\n|---|---|---|---|---|"
+        )
+        for cfg in CONFIGS:
+            for n in (100, 1_000, 10_000, 100_000):
+                r = run(cfg, n, a.repeats, 1, rng)
+                print(
+                    f"| {cfg} | {n:,} | {r['jax_pps']:,.0f} | {r['numpy_pps']:,.0f} | "
+                    f"{r['numpy_s'] / r['jax_s']:.1f}× |",
+                    flush=True,
+                )
     if a.per_cue:
         print(f"\nupper14-iros, each cue alone ({a.particles} particles, with the geometry that cue needs):")
         print("| cue | median ms | particles/s |\n|---|---|---|")

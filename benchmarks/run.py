@@ -91,7 +91,7 @@ def _synth(quick: bool) -> str:
 
 
 def _likelihood(quick: bool) -> str:
-    return _captured(_module("bench_likelihood").main, ["--quick"] if quick else ["--per-cue"])
+    return _captured(_module("bench_likelihood").main, ["--quick"] if quick else ["--per-cue", "--sweep"])
 
 
 def _iros(quick: bool) -> str:
