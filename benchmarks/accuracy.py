@@ -110,11 +110,6 @@ class Config:
     layers: int
     cues: tuple[str, ...] = BASE_CUES
 
-    @property
-    def particles_text(self) -> str:
-        p = self.particles
-        return "/".join(map(str, p)) if isinstance(p, tuple) else str(p)
-
 
 def run_config(cfg: Config, seq_dir: pathlib.Path, seeds: int, work: pathlib.Path) -> dict:
     """Errors (mm, one per seed) and the median step time of ``cfg`` on one sequence."""
@@ -123,7 +118,7 @@ def run_config(cfg: Config, seq_dir: pathlib.Path, seeds: int, work: pathlib.Pat
         options = tracker.TrackOptions(
             model=cfg.model,
             filter=cfg.filter,
-            particles=list(cfg.particles) if isinstance(cfg.particles, tuple) else cfg.particles,
+            particles=cfg.particles,
             layers=cfg.layers,
             cues=",".join(cfg.cues),
             init="groundtruth",
@@ -236,7 +231,7 @@ def table_md(rows: list[dict], clip_names: list[str], particles_col: bool = True
         c = r["config"]
         cells = [fmt(r["per_clip"][n]) for n in clip_names]
         lines.append(
-            f"| {r['label']} | {c.particles_text} × {c.layers} | {', '.join(c.cues)} | "
+            f"| {r['label']} | {tracker.particles_text(c.particles)} × {c.layers} | {', '.join(c.cues)} | "
             + " | ".join(cells)
             + f" | **{fmt(r['errors'])}** | {r['step_s'] * 1e3:.0f} | {r['lost']:.1f} |"
         )

@@ -14,6 +14,7 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
+from bench_likelihood import np_segment_poses
 
 from jaxmocap import body, camera, flesh, kinematics
 
@@ -26,32 +27,10 @@ def _stereo_rig():
 
 
 def _numpy_pipeline(model, pts_local, seg, rig, X):
-    """The same arithmetic in NumPy: FK over the tree (batched over particles), point transform, projection."""
-    topo = model.topology
-    axes = np.asarray(model.dof_axis, np.float64)
-    off = np.asarray(model.offset, np.float64)
-    N = X.shape[0]
-    Rs, ts = [], []
-    for s in range(topo.num_segments):
-        R = np.broadcast_to(np.eye(3), (N, 3, 3)).copy()
-        t = np.broadcast_to(off[s], (N, 3)).copy()
-        for k in topo.segment_dofs[s]:
-            a = axes[k]
-            if topo.dof_kinds[k] == "P":
-                t = t + np.einsum("nij,j->ni", R, a) * X[:, k, None]
-            else:
-                c, si = np.cos(X[:, k]), np.sin(X[:, k])
-                A = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-                Rk = np.eye(3) + si[:, None, None] * A + (1 - c)[:, None, None] * (A @ A)
-                R = R @ Rk
-        p = topo.parents[s]
-        if p >= 0:
-            t = ts[p] + np.einsum("nij,nj->ni", Rs[p], t)
-            R = Rs[p] @ R
-        Rs.append(R)
-        ts.append(t)
-    R = np.stack(Rs, 1)[:, seg]
-    t = np.stack(ts, 1)[:, seg]
+    """The same arithmetic in NumPy (float64): FK over the tree (batched over particles, the NumPy FK of
+    ``bench_likelihood.py``), point transform, projection."""
+    R, t = np_segment_poses(model, X, np.float64)
+    R, t = R[:, seg], t[:, seg]
     Xw = np.einsum("npij,pj->npi", R, pts_local) + t
     Xc = np.einsum("vij,npj->nvpi", np.asarray(rig.R), Xw) + np.asarray(rig.t)[None, :, None, :]
     K = np.asarray(rig.K)

@@ -93,28 +93,29 @@ def particles(model, n, rng):
 # NumPy implementation (particles on the first axis)
 
 
-def _axis_angle(a, th):
+def _axis_angle(a, th, dtype=F):
     """``(N, 3, 3)`` rotations about unit axis ``a (3,)`` by angles ``th (N,)`` (Rodrigues)."""
-    a = np.asarray(a, F)
-    Kx = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]], F)
+    a = np.asarray(a, dtype)
+    Kx = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]], dtype)
     s, c = np.sin(th)[:, None, None], np.cos(th)[:, None, None]
-    return np.eye(3, dtype=F) + s * Kx + (1 - c) * (Kx @ Kx)
+    return np.eye(3, dtype=dtype) + s * Kx + (1 - c) * (Kx @ Kx)
 
 
-def np_segment_poses(model, X):
-    """FK (product of exponentials, :func:`jaxmocap.kinematics.segment_poses`) for ``X (N, D)``."""
+def np_segment_poses(model, X, dtype=F):
+    """FK (product of exponentials, :func:`jaxmocap.kinematics.segment_poses`) for ``X (N, D)`` in ``dtype``
+    (also the NumPy baseline of ``bench_kinematics.py``)."""
     top = model.topology
-    rest, off, axis = (np.asarray(a, F) for a in (model.rest_rotation, model.offset, model.dof_axis))
+    rest, off, axis = (np.asarray(a, dtype) for a in (model.rest_rotation, model.offset, model.dof_axis))
     N = X.shape[0]
     Rs, ts = [], []
     for s in range(top.num_segments):
-        R = np.broadcast_to(rest[s] if top.rest_rotated[s] else np.eye(3, dtype=F), (N, 3, 3))
+        R = np.broadcast_to(rest[s] if top.rest_rotated[s] else np.eye(3, dtype=dtype), (N, 3, 3))
         t = np.broadcast_to(off[s], (N, 3))
         for k in top.segment_dofs[s]:
             if top.dof_kinds[k] == "P":
                 t = t + (R @ axis[k]) * X[:, k, None]
             else:
-                R = R @ _axis_angle(axis[k], X[:, k])
+                R = R @ _axis_angle(axis[k], X[:, k], dtype)
         p = top.parents[s]
         if p >= 0:
             t = ts[p] + np.einsum("nij,nj->ni", Rs[p], t)
@@ -355,7 +356,7 @@ def build(config: str, rng):
     rig = stereo_rig()
     obs = observation(rig, rng)
     lik = L.Likelihood.create(model, rig, [L.Cue(n) for n in names], surface_points=points)
-    if any(L.Cue(n).spec.reference for n in names):
+    if lik.needs_references:
         lik = lik.with_references(model.rest_pose, obs)
     return model, rig, obs, lik, target
 
@@ -409,7 +410,7 @@ def per_cue(config: str, n: int, repeats: int, rng) -> list[tuple[str, float]]:
     out = []
     for cue in lik.cues:
         one = L.Likelihood.create(model, rig, [cue], surface_points=points)
-        if cue.spec.reference:
+        if one.needs_references:
             one = one.with_references(model.rest_pose, obs)
         f = jax.jit(one.batch)
         f(X, obs, 0).block_until_ready()

@@ -143,7 +143,7 @@ def run(quick: bool = False, frames: int = 20, log=print) -> list[dict]:
                 opts = tracker.TrackOptions(
                     model=model,
                     filter=flt,
-                    particles=list(n) if isinstance(n, tuple) else n,
+                    particles=n,
                     layers=L,
                     cues=cues,
                     init="groundtruth",
@@ -177,7 +177,7 @@ def run(quick: bool = False, frames: int = 20, log=print) -> list[dict]:
                     label=label,
                     model=model,
                     filter=flt,
-                    particles=list(n) if isinstance(n, tuple) else n,
+                    particles=n,
                     layers=L,
                     evaluations=evals,
                     cues=cues,
@@ -219,10 +219,8 @@ def to_markdown(rows: list[dict], quick: bool = False) -> str:
         }
         bound = max(parts, key=parts.get)
         share = parts[bound] / max(sum(parts.values()), 1e-9)
-        p = r["particles"]
-        p = "/".join(map(str, p)) if isinstance(p, (list, tuple)) else p
         lines.append(
-            f"| {r['label']} | {r['model']} | {r['filter']} | {p} × {r['layers']} | {r['evaluations']} | "
+            f"| {r['label']} | {r['model']} | {r['filter']} | {tracker.particles_text(r['particles'])} × {r['layers']} | {r['evaluations']} | "
             f"**{r['fps']:.2f}**{met} | {tgt} | {r['fps_serial']:.2f} | {r['cpu_ms']:.0f} | {r['foreground']} | "
             f"{r['feature_ms']:.1f} | {r['step_ms']:.1f} | {r['likelihood_ms']:.1f} | {r['rest_ms']:.1f} | "
             f"{bound} ({100 * share:.0f} %) |"

@@ -104,11 +104,9 @@ def _particle_counts(text: str) -> int | list[int]:
     return counts[0] if len(counts) == 1 else counts
 
 
-def _particles_text(p) -> str:
-    return "/".join(str(c) for c in p) if isinstance(p, (list, tuple)) else str(p)
-
-
 def _print_summary(summary: dict, out) -> None:
+    from jaxmocap import tracker
+
     s = summary
     fps = s.get("frames_per_s")
     first = s.get("first_frame_s")
@@ -118,7 +116,7 @@ def _print_summary(summary: dict, out) -> None:
     print(line)
     cues = ", ".join(n if w == 1 else f"{n}:{w:g}" for n, w in s["cues"])
     print(
-        f"model {s['model']}, filter {s['filter']}, {_particles_text(s['particles'])} particles x {s['layers']} layer(s), cues {cues}"
+        f"model {s['model']}, filter {s['filter']}, {tracker.particles_text(s['particles'])} particles x {s['layers']} layer(s), cues {cues}"
     )
     print(f"track lost in {s['lost_frames']} frame(s), {s['reinitialisations']} re-initialisation(s)")
     if s.get("mean_error_mm") is not None:
@@ -309,7 +307,7 @@ def _demo(args) -> int:
     cues = ", ".join(n if w == 1 else f"{n}:{w:g}" for n, w in summary["cues"])
     head = [
         "jaxmocap demo: CMU 02_01 (walk), synthetic stereo, " + f"{seq.num_frames} frames at {args.size}",
-        f"model {summary['model']}, filter {summary['filter']}, {_particles_text(summary['particles'])} particles x "
+        f"model {summary['model']}, filter {summary['filter']}, {tracker.particles_text(summary['particles'])} particles x "
         f"{summary['layers']} layers, cues {cues}, init from ground truth",
         f"tracking {t2 - t1:.1f} s ({summary['frames_per_s']:.2f} frames/s after the first frame), total {total:.1f} s",
         "",

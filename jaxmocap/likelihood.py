@@ -173,6 +173,11 @@ class Likelihood:
             self.model.joint_names, cue.param_dict, self.rig, self.model, self.surface.segment, aux, ref
         )
 
+    @property
+    def needs_references(self) -> bool:
+        """Whether a cue reads first-frame reference data (set by :meth:`with_references`)."""
+        return any(c.spec.reference for c in self.cues)
+
     def check_observation(self, obs: Observation) -> None:
         """Raise a clear error if the observation lacks a field a cue needs, disagrees with the rig, or a cue
         needs reference data that :meth:`with_references` has not set."""

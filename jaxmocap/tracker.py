@@ -400,6 +400,11 @@ def partition_counts(
     return counts
 
 
+def particles_text(particles: int | Sequence[int]) -> str:
+    """``300`` → ``"300"``; one count per partition ``[1000, 200, 350]`` → ``"1000/200/350"``."""
+    return "/".join(map(str, particles)) if isinstance(particles, (list, tuple)) else str(particles)
+
+
 def _group_label(model: body_mod.BodyModel, group: tuple[int, ...]) -> str:
     """The name of the segment that owns the first DOF of ``group``."""
     topo = model.topology
@@ -775,6 +780,10 @@ class FeatureBuilder:
         )
         self.extractor = _Extractor(source.rig, cfg)
         self.rig = self.extractor.rig
+        #: what ``source.read`` must decode for these features: masks for ``--foreground mask``, depth maps for a
+        #: depth cue (each is a PNG or file per view to read)
+        self.needs_masks = foreground == "mask"
+        self.needs_depth = "depth" in reads
         self.num_samples = int(num_samples)
         if foreground == "median":
             frames = list(range(source.num_frames)) if frames is None else list(frames)
@@ -1157,7 +1166,7 @@ class Tracker:
         (:meth:`jaxmocap.likelihood.Likelihood.with_references`); a resumed run recomputes them from the same
         frame and pose, so that it continues with the same likelihood."""
         lik = self.likelihood
-        if lik is not None and any(c.spec.reference for c in lik.cues):
+        if lik is not None and lik.needs_references:
             dt = self.model.offset.dtype
             self.likelihood = lik.with_references(jnp.asarray(x0, dt), first.image)
 
@@ -1324,12 +1333,7 @@ class Tracker:
         self, t: int
     ) -> tuple[TrackObservation | None, np.ndarray | None, FrameData | None, str | None]:
         try:
-            # decode only what the features use: masks for --foreground mask, depth maps for a depth cue
-            fd = self.source.read(
-                t,
-                masks=self.features.foreground == "mask",
-                depth=any("depth" in cues_mod.REQUIRES.get(n, ()) for n, _ in self.cues),
-            )
+            fd = self.source.read(t, masks=self.features.needs_masks, depth=self.features.needs_depth)
         except BadFrame as e:
             if self.o.on_bad_frame == "stop":
                 raise MocapInputError(None, f"{e} (--on-bad-frame stop)") from None
@@ -1402,7 +1406,7 @@ class Tracker:
             start, skipped, how = frames.index(done) + 1, [], None
             x0 = np.asarray(ck["x0"], np.float64)
             self._ref_frame = int(ck["ref_frame"]) if "ref_frame" in ck else frames[0]
-            if self.likelihood is not None and any(c.spec.reference for c in self.likelihood.cues):
+            if self.likelihood is not None and self.likelihood.needs_references:
                 first = self._observe(self._ref_frame)[0]
                 if first is None:
                     raise MocapInputError(

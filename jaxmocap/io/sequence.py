@@ -218,21 +218,18 @@ def _check_size(path, img: np.ndarray, size: tuple[int, int] | None) -> None:
         )
 
 
-def read_rgb(path: str | os.PathLike, size: tuple[int, int] | None = None) -> np.ndarray:
-    """``(H, W, 3)`` uint8 RGB (a grey image is replicated to three channels)."""
-    path = pathlib.Path(path)
-    img = _imread(path, cv2.IMREAD_COLOR)
-    _check_size(path, img, size)
-    return np.ascontiguousarray(img[..., ::-1])
-
-
 def read_bgr(path: str | os.PathLike, size: tuple[int, int] | None = None) -> np.ndarray:
     """``(H, W, 3)`` uint8 in OpenCV's BGR order, as decoded (no channel flip: what OpenCV-based preprocessing
-    takes)."""
+    takes; a grey image is replicated to three channels)."""
     path = pathlib.Path(path)
     img = _imread(path, cv2.IMREAD_COLOR)
     _check_size(path, img, size)
     return img
+
+
+def read_rgb(path: str | os.PathLike, size: tuple[int, int] | None = None) -> np.ndarray:
+    """``(H, W, 3)`` uint8 RGB (a grey image is replicated to three channels)."""
+    return np.ascontiguousarray(read_bgr(path, size)[..., ::-1])
 
 
 def _read_8bit(path: pathlib.Path, size, what: str) -> np.ndarray:
