@@ -261,8 +261,7 @@ class ParsecTracker:
             diag.close()
             raise
         writer.close()
-        recs = [r for r in diag.records if "seconds" in r]
-        fps = (len(recs) - 1) / max(sum(r["seconds"] for r in recs[1:]), 1e-9) if len(recs) > 1 else None
+        fps = diag.frames_per_s()
         summary = {
             "frames_tracked": writer.num_frames,
             "frames_requested": len(self.frames),

@@ -1577,10 +1577,7 @@ class Tracker:
     def _finish(self, pose_writer, diag, stats, wall, interrupted, resumed_at) -> dict:
         model = self.model
         n = pose_writer.num_frames
-        fps_steady = None
-        recs = [r for r in diag.records if "seconds" in r]
-        if len(recs) > 1:
-            fps_steady = (len(recs) - 1) / max(sum(r["seconds"] for r in recs[1:]), 1e-9)
+        fps_steady = diag.frames_per_s()
         summary = {
             "frames_tracked": n,
             "frames_requested": len(self.frames),

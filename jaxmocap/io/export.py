@@ -296,6 +296,14 @@ class DiagnosticsWriter:
         self._journal = open(journal, "a", encoding="utf-8", newline="\n")  # noqa: SIM115
         self.write_json()
 
+    def frames_per_s(self) -> float | None:
+        """Tracking rate after the first frame (which includes compilation): frame records with ``seconds``,
+        first one left out; None with fewer than two."""
+        recs = [r for r in self.records if "seconds" in r]
+        if len(recs) < 2:
+            return None
+        return (len(recs) - 1) / max(sum(r["seconds"] for r in recs[1:]), 1e-9)
+
     def append(self, record: Mapping) -> None:
         rec = _jsonable(record)
         self.records.append(rec)
