@@ -271,6 +271,50 @@ def test_hierarchical_sampling_matches_kalman():
     print(f"hierarchical: max |t| {t:.2f}, MSE / predicted {ratio:.2f}")
 
 
+GROUP_MASKS = np.array([[True, True, False], [False, False, True]])
+
+
+@pytest.mark.parametrize("hier", [False, True])
+def test_scanned_partitions_equal_the_unrolled_step(hier):
+    """``scan_partitions``: equal-count partitions run as one ``lax.scan`` with the partition index traced. The
+    likelihood is traced once instead of once per stage, and the particles, estimates, diagnostics and a
+    recovery in the second partition are those of the unrolled step (same keys, same operations)."""
+    traces = []
+
+    def ll(X, obs, k):  # reads the partition index as an array, so it works traced and as a Python int
+        traces.append(1)
+        k = getattr(k, "partition", k)
+        m = jnp.asarray(GROUP_MASKS)[k]
+        return _kill(-0.5 * jnp.sum(jnp.where(m, (X - obs.z) ** 2, 0.0), axis=1) / R**2, obs, k)
+
+    x, z, obs = simulate(9, dead={6: (1, 1)})
+    sched = Schedule.deutscher(2, diffusion_scales=(1.0, 0.5))
+    out = {}
+    for scan in (False, True):
+        kw = dict(scan_partitions=scan)
+        f = (
+            hierarchical(ll, jnp.full(D, Q), GROUPS, (1500, 1500), sched, **kw)
+            if hier
+            else Partitioned(ll, jnp.full(D, Q), GROUPS, (1500, 1500), **kw)
+        )
+        assert f.runs() == ([(0, 2)] if scan else [(0, 1), (1, 2)])
+        traces.clear()
+        state, info = jax.jit(f.step)(key(3), f.init(key(2), jnp.zeros(D)), jax.tree.map(lambda a: a[6], obs))
+        out[scan] = (state, info, len(traces))
+    (s0, i0, n0), (s1, i1, n1) = out[False], out[True]
+    assert (n0, n1) == ((4 if hier else 2), 1)  # hierarchical unrolled: each level's first layer apart
+    assert bool(i0.recovered) and bool(i1.recovered)
+    np.testing.assert_allclose(s1.particles, s0.particles, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(i1.estimate, i0.estimate, rtol=0, atol=1e-6)
+    np.testing.assert_array_equal(i1.layers.num_nonfinite, i0.layers.num_nonfinite)
+    np.testing.assert_allclose(i1.layers.ess, i0.layers.ess, rtol=1e-5)
+    # counts of different sizes: the first partition of a size runs alone, the rest of its run is scanned
+    f = Partitioned(ll, jnp.full(D, Q), ((0,), (1,), (2,)), (40, 30, 30), scan_partitions=True)
+    assert f.runs() == [(0, 1), (1, 2), (2, 3)]
+    f = Partitioned(ll, jnp.full(4, Q), ((0,), (1,), (2,), (3,)), (40, 30, 30, 30), scan_partitions=True)
+    assert f.runs() == [(0, 1), (1, 2), (2, 4)]
+
+
 def _all_filters():
     sched = Schedule.deutscher(3, diffusion_scales=(1.0, 0.5, 0.25))
     return {

@@ -56,11 +56,17 @@ def test_filter_factory_builds_every_filter():
         if isinstance(f, Partitioned):
             assert f.groups == tracker.partition_groups(model)
             assert (f.schedule is not None) == (name == "hierarchical")
+            assert f.scan_partitions and f.runs() == [(0, len(f.groups))]  # one count: a single scanned stage
         # the heading is averaged as an angle
         assert f.circular[model.dof_index("body_rz")] and not f.circular[0]
     assert kinds["sir"] is SIR and kinds["icondensation"] is ICondensation
     assert {kinds[n] for n in ("apf", "iapf", "fbapf", "fbapf2", "fbapf3", "m-apf")} == {APF}
     assert kinds["partitioned"] is Partitioned and kinds["hierarchical"] is Partitioned
+    counts = (30, 10, 20, 20)
+    f = tracker.make_filter(
+        "partitioned", _toy_loglik, model, np.ones(model.num_dofs), counts, 1, np.zeros(13), 1
+    )
+    assert f.counts == counts and not f.scan_partitions  # unequal counts: partitions unrolled
     with pytest.raises(ValueError, match="unknown filter"):
         tracker.make_filter("kalman", _toy_loglik, model, np.ones(13), 10, 1, np.zeros(13), np.ones(13))
 

@@ -57,12 +57,13 @@ class Layer(NamedTuple):
 
     ``index``: the layer ``l`` (int32 scalar, 0 = first layer run in a frame); ``beta``: the exponent of this layer
     when the schedule fixes it in advance, otherwise the previous layer's β (0 in the first layer), since an adaptive
-    β is chosen from the returned values; ``partition``: the partition/level (a Python int; 0 when not partitioned).
+    β is chosen from the returned values; ``partition``: the partition/level (a Python int; 0 when not partitioned; a traced int32 in a
+    :class:`~jaxmocap.filters.partitioned.Partitioned` filter with ``scan_partitions``).
     """
 
     index: jnp.ndarray
     beta: jnp.ndarray
-    partition: int = 0
+    partition: int | jnp.ndarray = 0
 
 
 class LayerStats(NamedTuple):

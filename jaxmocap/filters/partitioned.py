@@ -18,6 +18,16 @@ Hierarchical sampling: with a ``schedule`` (:class:`jaxmocap.annealing.Schedule`
 annealing layers on its group (as in :class:`jaxmocap.filters.apf.APF`, diffusion ``Δ[G_k] · s_l``), and the
 likelihood receives ``Layer(index=l, beta, partition=k)``: ``loglik_batch(X, observation, layer)``.
 
+Compilation: each partition is its own stage of the step, so a step with ``K`` partitions inlines the likelihood
+``K`` times (hierarchical: ``2K``, since the first layer of a level runs outside its scan over layers). With
+``scan_partitions=True`` — for a likelihood that does not need the partition as a Python int (it receives it
+traced) — consecutive partitions whose input sets have their own size (equal counts) run as one ``lax.scan`` over
+the partition index, DOF mask and key, their layers all inside the scan over layers (:meth:`Partitioned.runs`):
+``full25`` with one count for all six partitions inlines the likelihood once. Keys, masks and the order of
+operations are those of the unrolled step. The trade, measured on ``full25`` (``benchmarks/compile_partitions.py``):
+with one stage left, compilation 2.6–5.3× faster and each step 9–15 % slower (XLA overlaps less work inside a
+loop); with unequal counts (four stages) compilation only 2–16 % faster.
+
 Recovery: a partition (or layer) without any finite log-likelihood re-draws its group's DOFs around the previous
 frame's estimate with std ``recovery_widen · Δ`` (or keeps them, ``recovery="uniform"``) with uniform weights, and
 sets ``Info.recovered``; with ``"reinit"`` the frame's estimate of those DOFs is the previous frame's. ``Info.layers`` has shape ``(K, L)`` (``L = 1`` without a schedule).
@@ -47,7 +57,8 @@ class Partitioned:
     Arrays (traced): ``diffusion_std (D,)``, ``lower, upper``.
     Static: ``loglik_batch``, ``groups`` (tuple of tuples of DOF indices), ``counts`` (particles per group),
     ``schedule`` (None: partitioned sampling), ``resampling``, ``limit_mode``, ``circular``, ``recovery``,
-    ``recovery_widen``.
+    ``recovery_widen``, ``scan_partitions`` (run equal-count partitions in one ``lax.scan``; the likelihood then
+    receives the partition index traced — see the module docstring).
     """
 
     loglik_batch: Callable
@@ -62,6 +73,7 @@ class Partitioned:
     circular: tuple[bool, ...] | None = None
     recovery: str = "reinit"
     recovery_widen: float = 3.0
+    scan_partitions: bool = False
 
     def __post_init__(self):
         groups = tuple(tuple(int(i) for i in g) for g in self.groups)
@@ -86,10 +98,27 @@ class Partitioned:
         std = self.diffusion_std if std is None else std
         return base.init_state(key, self.num_particles, mean, std, self.lower, self.upper, self.limit_mode)
 
-    def _mask(self, k: int, dim: int) -> np.ndarray:
-        m = np.zeros(dim, bool)
-        m[list(self.groups[k])] = True
+    def _masks(self, dim: int) -> np.ndarray:
+        """``(K, D)`` bool: the DOFs of each group."""
+        m = np.zeros((len(self.groups), dim), bool)
+        for k, g in enumerate(self.groups):
+            m[k, list(g)] = True
         return m
+
+    def runs(self) -> list[tuple[int, int]]:
+        """``[(start, stop), …]``: the stages of a step, each running partitions ``start … stop − 1``. Without
+        ``scan_partitions`` every partition is its own stage. With it, a partition whose input set has its own size
+        (``counts[k − 1] == counts[k]``; the first partition's input is the previous frame's set of ``counts[-1]``)
+        joins the stage before it when that stage is of such partitions too: maximal runs of equal counts, each
+        scanned, minus a first partition that resamples from a set of another size."""
+        out: list[list] = []
+        for k in range(len(self.groups)):
+            same_size = self.scan_partitions and self.counts[k - 1] == self.counts[k]
+            if same_size and out and out[-1][2]:
+                out[-1][1] = k + 1
+            else:
+                out.append([k, k + 1, same_size])
+        return [(a, b) for a, b, _ in out]
 
     def _weigh(self, key, X, ll, beta, status, mask, previous_estimate):
         log_w, ok = base.normalise(beta * jnp.where(jnp.isfinite(ll), ll, -jnp.inf))
@@ -108,11 +137,10 @@ class Partitioned:
         X_rec = jnp.where(mask, X_rec, X)
         return jnp.where(ok, X, X_rec), log_w, stats, ~ok
 
-    def _partition(self, key, X, log_w, k, observation, previous_estimate):
-        """Run partition ``k``; returns ``(X, log_w, stats with a leading (L,) axis, recovered)``."""
-        n = self.counts[k]
+    def _partition(self, key, X, log_w, k, mask, n, observation, previous_estimate):
+        """Run partition ``k`` (a Python int, or traced with ``scan_partitions``) of ``n`` particles on the DOFs
+        ``mask (D,)``; returns ``(X, log_w, stats with a leading (L,) axis, recovered)``."""
         dtype = X.dtype
-        mask = jnp.asarray(self._mask(k, X.shape[1]))
         std_k = jnp.where(mask, self.diffusion_std, 0.0)
         if self.schedule is None:
             k_sel, k_move, k_rec = jax.random.split(key, 3)
@@ -139,13 +167,16 @@ class Partitioned:
             X, log_w, stats, rec = self._weigh(k_rec, X, ll, sol.beta, sol.status, mask, previous_estimate)
             return (X, log_w, stats.beta, stats.survival_rate, recovered | rec), stats
 
-        # the first layer resamples from a set of a different size: run it outside the scan
         L = schedule.num_layers
         keys = jax.random.split(key, L)
+        layers = jnp.arange(L, dtype=jnp.int32)
         carry = (X, log_w, jnp.zeros((), dtype), jnp.ones((), dtype), jnp.zeros((), bool))
-        carry, first = layer_fn(carry, (keys[0], jnp.int32(0)))
-        carry, rest = jax.lax.scan(layer_fn, carry, (keys[1:], jnp.arange(1, L, dtype=jnp.int32)))
-        stats = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), first, rest)
+        if self.scan_partitions and X.shape[0] == n:
+            carry, stats = jax.lax.scan(layer_fn, carry, (keys, layers))
+        else:  # the first layer (resampling from a set of another size in general) runs outside the scan
+            carry, first = layer_fn(carry, (keys[0], layers[0]))
+            carry, rest = jax.lax.scan(layer_fn, carry, (keys[1:], layers[1:]))
+            stats = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), first, rest)
         X, log_w, _, _, rec = carry
         return X, log_w, stats, rec
 
@@ -153,14 +184,31 @@ class Partitioned:
         """One frame over all partitions. ``Info.layers`` has shape ``(K, L)``."""
         keys = jax.random.split(key, len(self.groups))
         X, log_w = state.particles, state.log_weights
-        all_stats, recovered = [], jnp.zeros((), bool)
+        masks = self._masks(X.shape[1])
+        recovered = jnp.zeros((), bool)
         stale = jnp.zeros(X.shape[1], bool)  # DOFs re-initialised by a recovery in this frame
-        for k in range(len(self.groups)):
-            X, log_w, stats, rec = self._partition(keys[k], X, log_w, k, observation, state.estimate)
+        all_stats = []
+        for start, stop in self.runs():
+            n = self.counts[start]
+
+            def stage(carry, inputs, n=n):
+                X, log_w, recovered, stale = carry
+                kk, k, mask = inputs
+                X, log_w, stats, rec = self._partition(kk, X, log_w, k, mask, n, observation, state.estimate)
+                return (X, log_w, recovered | rec, stale | (rec & mask)), stats
+
+            carry = (X, log_w, recovered, stale)
+            if stop - start == 1:
+                carry, stats = stage(carry, (keys[start], start, jnp.asarray(masks[start])))
+                stats = jax.tree_util.tree_map(lambda a: a[None], stats)
+            else:
+                ks = jnp.arange(start, stop, dtype=jnp.int32)
+                carry, stats = jax.lax.scan(
+                    stage, carry, (keys[start:stop], ks, jnp.asarray(masks[start:stop]))
+                )
+            X, log_w, recovered, stale = carry
             all_stats.append(stats)
-            recovered = recovered | rec
-            stale = stale | (rec & jnp.asarray(self._mask(k, X.shape[1])))
-        stats = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *all_stats)
+        stats = jax.tree_util.tree_map(lambda *a: jnp.concatenate(a), *all_stats)
         estimate = base.weighted_mean(X, log_w, self.circular)
         if self.recovery == "reinit":
             estimate = jnp.where(stale, state.estimate, estimate)
