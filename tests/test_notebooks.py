@@ -28,6 +28,8 @@ def test_notebook_runs_and_writes_its_figures(name, tmp_path):
         PYTHONDONTWRITEBYTECODE="1",
     )
     env.setdefault("JAX_PLATFORMS", "cpu")
+    # a smoke run (the numbers are tested elsewhere): XLA's lowest backend optimisation level compiles ≈ 30 % faster
+    env["XLA_FLAGS"] = (env.get("XLA_FLAGS", "") + " --xla_backend_optimization_level=0").strip()
     proc = subprocess.run(
         [sys.executable, f"{name}.py"], cwd=NOTEBOOKS, env=env, capture_output=True, text=True, timeout=900
     )
