@@ -57,8 +57,8 @@ class Layer(NamedTuple):
 
     ``index``: the layer ``l`` (int32 scalar, 0 = first layer run in a frame); ``beta``: the exponent of this layer
     when the schedule fixes it in advance, otherwise the previous layer's β (0 in the first layer), since an adaptive
-    β is chosen from the returned values; ``partition``: the partition/level (a Python int; 0 when not partitioned; a traced int32 in a
-    :class:`~jaxmocap.filters.partitioned.Partitioned` filter with ``scan_partitions``).
+    β is chosen from the returned values; ``partition``: the partition/level (a Python int, 0 when not partitioned;
+    a traced int32 in a :class:`~jaxmocap.filters.partitioned.Partitioned` filter with ``scan_partitions``).
     """
 
     index: jnp.ndarray
