@@ -581,6 +581,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    from jaxmocap import compilation_cache
+
+    compilation_cache.enable()  # a second run of a configuration reloads its compiled programs
     try:
         return args.func(args)
     except MocapInputError as e:

@@ -15,3 +15,6 @@ def data_dir() -> pathlib.Path:
 
 def pytest_configure(config):
     os.environ.setdefault("JAX_PLATFORMS", "cpu")
+    # the command line's persistent compilation cache stays off in the suite (nothing written to the home
+    # directory; tests/test_compilation_cache.py turns it on in its own processes)
+    os.environ["JAXMOCAP_CACHE_DIR"] = "off"
