@@ -9,7 +9,8 @@ its compilation (the ``full25`` kinematics: 8.1 s → 1.0 s for the first call).
 Directory: ``$JAXMOCAP_CACHE_DIR``, else ``$XDG_CACHE_HOME/jaxmocap/xla`` (``~/.cache/jaxmocap/xla``);
 ``JAXMOCAP_CACHE_DIR=off`` disables it. A cache directory already configured for JAX itself
 (``JAX_COMPILATION_CACHE_DIR``, ``jax.config``) is used as it is. Only programs that took at least
-``min_compile_seconds`` to compile are stored. Deleting the directory is always safe.
+``min_compile_seconds`` to compile are stored. Deleting the directory is always safe. Scripts and notebooks get
+the same cache by calling :func:`enable` before their first compilation.
 """
 
 from __future__ import annotations
