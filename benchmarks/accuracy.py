@@ -111,20 +111,25 @@ class Config:
     cues: tuple[str, ...] = BASE_CUES
 
 
+def track_options(cfg: Config) -> tracker.TrackOptions:
+    """The tracker options of ``cfg``: initialised from the ground truth, ground-truth masks as the foreground."""
+    return tracker.TrackOptions(
+        model=cfg.model,
+        filter=cfg.filter,
+        particles=cfg.particles,
+        layers=cfg.layers,
+        cues=",".join(cfg.cues),
+        init="groundtruth",
+        foreground="mask",
+        overwrite=True,
+    )
+
+
 def run_config(cfg: Config, seq_dir: pathlib.Path, seeds: int, work: pathlib.Path) -> dict:
     """Errors (mm, one per seed) and the median step time of ``cfg`` on one sequence."""
     source = tracker.SequenceSource(seq_dir)
     try:
-        options = tracker.TrackOptions(
-            model=cfg.model,
-            filter=cfg.filter,
-            particles=cfg.particles,
-            layers=cfg.layers,
-            cues=",".join(cfg.cues),
-            init="groundtruth",
-            foreground="mask",
-            overwrite=True,
-        )
+        options = track_options(cfg)
         out = work / "track"
         run = CachedTracker(source, out, options, quiet=True)
         gt_frames, gt_joints = metrics.load_groundtruth(seq_dir)

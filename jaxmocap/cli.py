@@ -104,6 +104,11 @@ def _particle_counts(text: str) -> int | list[int]:
     return counts[0] if len(counts) == 1 else counts
 
 
+def _cues_text(cues) -> str:
+    """``[("foreground", 1.0), ("coverage", 4.0)]`` → ``"foreground, coverage:4"`` (the ``--cues`` syntax)."""
+    return ", ".join(n if w == 1 else f"{n}:{w:g}" for n, w in cues)
+
+
 def _print_summary(summary: dict, out) -> None:
     from jaxmocap import tracker
 
@@ -114,7 +119,7 @@ def _print_summary(summary: dict, out) -> None:
     if fps:
         line += f": {fps:.2f} frames/s after a first frame (with compilation) of {first:.1f} s"
     print(line)
-    cues = ", ".join(n if w == 1 else f"{n}:{w:g}" for n, w in s["cues"])
+    cues = _cues_text(s["cues"])
     print(
         f"model {s['model']}, filter {s['filter']}, {tracker.particles_text(s['particles'])} particles x {s['layers']} layer(s), cues {cues}"
     )
@@ -304,7 +309,7 @@ def _demo(args) -> int:
         str(out / "demo_overlay.png"), np.concatenate(crops, axis=1), [cv2.IMWRITE_PNG_COMPRESSION, 9]
     )
     total = time.monotonic() - t0
-    cues = ", ".join(n if w == 1 else f"{n}:{w:g}" for n, w in summary["cues"])
+    cues = _cues_text(summary["cues"])
     head = [
         "jaxmocap demo: CMU 02_01 (walk), synthetic stereo, " + f"{seq.num_frames} frames at {args.size}",
         f"model {summary['model']}, filter {summary['filter']}, {tracker.particles_text(summary['particles'])} particles x "

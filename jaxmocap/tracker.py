@@ -772,9 +772,8 @@ class FeatureBuilder:
         self.source = source
         names = set(cue_names)
         reads = {f for n in names for f in cues_mod.REQUIRES.get(n, ())}
-        blobs = (
-            "blobs3d" in names
-        )  # IROS 2007's 3D head / hand blobs: skin blobs matched across the first pair
+        # IROS 2007's 3D head / hand blobs: skin blobs matched across the first pair
+        blobs = "blobs3d" in names
         cfg = FeatureConfig(
             foreground={"mask": "none", "median": "static", "mog2": "mog2", "none": "none"}[foreground],
             edges=bool(names & {"edges", "edge_fraction"}),
