@@ -284,10 +284,15 @@ def project_with_depth(rig: Rig, X) -> tuple[jnp.ndarray, jnp.ndarray]:
     depth, or use :func:`in_view`. The rig is cast to the dtype of ``X``.
     """
     X = _float_points(X)
-    dt = X.dtype
+    return pixels_from_camera(rig, *_camera_coords(rig, X))
+
+
+def pixels_from_camera(rig: Rig, xc, yc, zc) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """:func:`project_with_depth` from camera-frame coordinates: ``xc, yc, zc (..., V, P)`` → ``uv (..., V, P, 2)``
+    and ``depth = zc`` (for callers that compose the camera with another transform first)."""
+    dt = zc.dtype
     K = jnp.asarray(rig.K, dt)
     dist = jnp.asarray(rig.dist, dt)
-    xc, yc, zc = _camera_coords(rig, X)
     inv_z = 1.0 / zc
     ad, bd = _distort(dist, xc * inv_z, yc * inv_z)
     u = _col(K[:, 0, 0]) * ad + _col(K[:, 0, 1]) * bd + _col(K[:, 0, 2])

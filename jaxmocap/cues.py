@@ -32,6 +32,7 @@ tests) are piecewise constant in the pose and have no differentiable variant her
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from typing import NamedTuple
@@ -55,6 +56,9 @@ class Geometry(NamedTuple):
     surface_facing ``(V, P)`` bool: outward normal faces the camera (and the point is in front of it);
     surface_index, surface_inside ``(V, P)``: nearest-pixel flat index into the ``(V, H, W)`` maps and the
     in-image mask (:func:`jaxmocap.maps.nearest_index`), shared by every nearest-pixel surface cue;
+    surface_visible_index ``(V, P)``: the same index where the sample faces the camera and lies in the image, else
+    the sentinel ``V·H·W`` (:func:`jaxmocap.maps.visible_index`): one gather from a map with a sentinel entry
+    returns the value and the visibility together;
     contour_uv ``(V, Q, 2)`` occluding-contour points of the primitives seen from each camera;
     contour_index, contour_inside ``(V, Q)`` likewise;
     primitives: :class:`jaxmocap.flesh.Primitives` in the world frame.
@@ -68,6 +72,7 @@ class Geometry(NamedTuple):
     surface_facing: jnp.ndarray | None = None
     surface_index: jnp.ndarray | None = None
     surface_inside: jnp.ndarray | None = None
+    surface_visible_index: jnp.ndarray | None = None
     contour_uv: jnp.ndarray | None = None
     contour_index: jnp.ndarray | None = None
     contour_inside: jnp.ndarray | None = None
@@ -101,13 +106,14 @@ def _unit_scale(a: jnp.ndarray) -> float:
     return 1.0 / 255.0 if a.dtype == jnp.uint8 else 1.0
 
 
-def _surface_values(obs_map, g: Geometry, ctx: CueContext, unit: bool = True):
-    """``(values (V, P), inside (V, P))`` of a ``(V, H, W)`` map at the surface points (nearest or bilinear)."""
+def _surface_values(obs_map, g: Geometry, ctx: CueContext, unit: bool = True, points: slice = slice(None)):
+    """``(values (V, P'), inside (V, P'))`` of a ``(V, H, W)`` map at the surface points ``points`` (a static
+    slice, default all; nearest or bilinear)."""
     s = _unit_scale(obs_map) if unit else 1.0
     if ctx.params.get("bilinear", False):
-        i00, fu, fv, inside = maps.bilinear_index(g.surface_uv, obs_map.shape)
+        i00, fu, fv, inside = maps.bilinear_index(g.surface_uv[:, points], obs_map.shape)
         return maps.gather_bilinear(obs_map, i00, fu, fv, s), inside
-    return maps.gather(obs_map, g.surface_index, s), g.surface_inside
+    return maps.gather(obs_map, g.surface_index[:, points], s), g.surface_inside[:, points]
 
 
 def _contour_values(obs_map, g: Geometry, ctx: CueContext, unit: bool = True):
@@ -158,22 +164,25 @@ def _rgb_bytes(obs: Observation) -> jnp.ndarray:
 
 
 def _packed_rgb(obs: Observation, cache: dict) -> jnp.ndarray:
-    """``(V, H, W)`` int32 ``R + 256 G + 65536 B`` of the bytes ``round(255 c)`` (one gather reads a colour)."""
+    """``(V·H·W + 1,)`` int32 ``R + 256 G + 65536 B`` of the bytes ``round(255 c)``, flattened, with the sentinel
+    −1 appended (:func:`jaxmocap.maps.with_sentinel`): one gather reads a colour, and read at
+    :attr:`Geometry.surface_visible_index` also whether the sample is seen."""
     if "rgb_packed" not in cache:
         c8 = _rgb_bytes(obs)
-        cache["rgb_packed"] = c8[..., 0] | (c8[..., 1] << 8) | (c8[..., 2] << 16)
+        cache["rgb_packed"] = maps.with_sentinel(c8[..., 0] | (c8[..., 1] << 8) | (c8[..., 2] << 16), -1)
     return cache["rgb_packed"]
+
+
+def _unpack_bytes(p: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray, jnp.ndarray]:
+    """Packed colours ``(...)`` int32 → the three int32 bytes R, G, B."""
+    return p & 255, (p >> 8) & 255, (p >> 16) & 255
 
 
 def _unpack_rgb(p: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray, jnp.ndarray]:
     """Packed colours ``(...)`` int32 → three float32 arrays R, G, B in [0, 1] (kept apart: per-channel arithmetic
     over long arrays, no reduction over a minor axis of 3)."""
     s = 1.0 / 255.0
-    return (
-        (p & 255).astype(jnp.float32) * s,
-        ((p >> 8) & 255).astype(jnp.float32) * s,
-        (p >> 16).astype(jnp.float32) * s,
-    )
+    return tuple(c.astype(jnp.float32) * s for c in _unpack_bytes(p))
 
 
 def _surface_rgb(obs: Observation, g: Geometry, ctx: CueContext):
@@ -185,6 +194,12 @@ def _surface_rgb(obs: Observation, g: Geometry, ctx: CueContext):
         s = _unit_scale(obs.rgb)
         return tuple(maps.gather_bilinear(planes[c], i00, fu, fv, s) for c in range(3)), inside
     return _unpack_rgb(maps.gather(ctx.aux["rgb_packed"], g.surface_index, raw=True)), g.surface_inside
+
+
+def _visible_rgb(g: Geometry, ctx: CueContext) -> jnp.ndarray:
+    """``(V, P)`` int32 packed colours at the surface samples that face the camera and lie in the image, −1 at
+    the others: one gather at :attr:`Geometry.surface_visible_index` (nearest pixel)."""
+    return maps.gather(ctx.aux["rgb_packed"], g.surface_visible_index, raw=True)
 
 
 def _weighted_mean(values, w, axis=-1, empty=0.0):
@@ -373,8 +388,8 @@ def head_skin(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
     skin, ``E_v = Σ_p f_vp (1 − S_v(u_vp)) / Σ_p f_vp`` (``f`` = facing; out-of-image samples count as not skin;
     1 when no head sample faces the camera)."""
     sl = _segment_points(ctx, ctx.model.segment_names.index(ctx.params.get("segment", "head")))
-    S, inside = _surface_values(obs.skin, g, ctx)
-    S = jnp.where(inside, S, 0.0)[:, sl]
+    S, inside = _surface_values(obs.skin, g, ctx, points=sl)
+    S = jnp.where(inside, S, 0.0)
     f = g.surface_facing[:, sl].astype(S.dtype)
     return _weighted_mean(1.0 - S, f, empty=1.0)
 
@@ -409,8 +424,8 @@ def skin(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
     sigma = ctx.params.get("sigma", 0.5)
     bil = ctx.params.get("bilinear", False)
     sl = _segment_points(ctx, ctx.model.segment_names.index("head"))
-    S, inside = _surface_values(obs.skin, g, ctx)
-    S = jnp.where(inside, S, 0.0)[:, sl]
+    S, inside = _surface_values(obs.skin, g, ctx, points=sl)
+    S = jnp.where(inside, S, 0.0)
     head = _weighted_mean(S, g.surface_facing[:, sl].astype(S.dtype), empty=0.0)  # (V,)
     uvh = _hand_samples(g, ctx)
     V = uvh.shape[0]
@@ -430,16 +445,20 @@ def _colour_bins(c8: jnp.ndarray, bins: int, space: str) -> jnp.ndarray:
     """Bin index of colour bytes ``c8 (..., 3)`` (RGB, ``round(255 c)``) exactly as
     :func:`jaxmocap.features.colour.roi_histograms` bins them: ``"rgb"``: ``(q_r b + q_g) b + q_b`` with
     ``q = ⌊c8 b / 256⌋``; ``"rg"``: chromaticity ``r = R/(R+G+B)``, ``g = G/(R+G+B)`` binned to ``min(⌊r b⌋, b−1)``."""
-    if space == "rgb":
-        q = (c8 * bins) // 256
-        return (q[..., 0] * bins + q[..., 1]) * bins + q[..., 2]
+    return _channel_bins(c8[..., 0], c8[..., 1], c8[..., 2], bins, space)
+
+
+def _channel_bins(r8, g8, b8, bins: int, space: str) -> jnp.ndarray:
+    """:func:`_colour_bins` of the three int32 byte arrays ``r8, g8, b8`` (as :func:`_unpack_bytes` gives them)."""
+    if space == "rgb":  # bytes are non-negative: ⌊c b / 256⌋ is a shift
+        return (((r8 * bins) >> 8) * bins + ((g8 * bins) >> 8)) * bins + ((b8 * bins) >> 8)
     if space == "rg":
-        f = c8.astype(jnp.float32)
-        s = jnp.sum(f, axis=-1)
+        r, gg, b = (c.astype(jnp.float32) for c in (r8, g8, b8))
+        s = r + gg + b
         s = jnp.where(s > 0, s, 1.0)
-        r = jnp.minimum(jnp.floor(f[..., 0] / s * bins), bins - 1).astype(jnp.int32)
-        gg = jnp.minimum(jnp.floor(f[..., 1] / s * bins), bins - 1).astype(jnp.int32)
-        return r * bins + gg
+        qr = jnp.minimum(jnp.floor(r / s * bins), bins - 1).astype(jnp.int32)
+        qg = jnp.minimum(jnp.floor(gg / s * bins), bins - 1).astype(jnp.int32)
+        return qr * bins + qg
     raise ValueError(f"colour space must be 'rgb' or 'rg', got {space!r}")
 
 
@@ -459,18 +478,6 @@ def _prepare_colour(obs: Observation, ctx: CueContext, cache: dict):
     return out
 
 
-def _prepare_histogram(obs: Observation, ctx: CueContext, cache: dict):
-    """The colour maps of :func:`_prepare_colour` and the per-pixel colour bin map (``uint8`` up to 256 bins)."""
-    out = _prepare_colour(obs, ctx, cache)
-    bins, space = int(ctx.params.get("bins", 4)), ctx.params.get("space", "rgb")
-    key = f"bins_{space}_{bins}"
-    if key not in cache:
-        dtype = jnp.uint8 if _num_bins(ctx.params) <= 256 else jnp.int32
-        cache[key] = _colour_bins(_rgb_bytes(obs), bins, space).astype(dtype)
-    out["bins"] = cache[key]
-    return out
-
-
 def _soft_bin_weights(rgb, bins: int) -> jnp.ndarray:
     """Triangular-kernel bin weights ``(..., bins³)`` of colours ``(R, G, B)`` (each ``(...)`` in [0, 1]): per channel
     ``k_j(c) = max(0, 1 − |c b − (j + ½)|)`` (clamped at the outer bin centres, so the weights sum to 1), joint
@@ -482,6 +489,29 @@ def _soft_bin_weights(rgb, bins: int) -> jnp.ndarray:
     return (k[0][..., :, None, None] * k[1][..., None, :, None] * k[2][..., None, None, :]).reshape(
         rgb[0].shape + (bins**3,)
     )
+
+
+@functools.cache
+def _counter(size: int):
+    """``counts(slot) -> (size,)`` float32: how many entries of the int32 array ``slot`` (values in ``[0, size)``)
+    fall in each slot, by one scatter-add of ones. Its batching rule offsets each batch member's slots into one
+    flat array and counts them with one 1-D scatter (the default rule scatters with a batch index per update, whose
+    index array costs as much as the scatter itself)."""
+
+    @jax.custom_batching.custom_vmap
+    def counts(slot):
+        return jnp.zeros((size,), jnp.float32).at[slot.reshape(-1)].add(1.0)
+
+    @counts.def_vmap
+    def _rule(axis_size, in_batched, slot):
+        if not in_batched[0]:
+            out = counts(slot)
+            return jnp.broadcast_to(out, (axis_size, size)), True
+        flat = slot.reshape(axis_size, -1) + (jnp.arange(axis_size, dtype=slot.dtype) * size)[:, None]
+        out = jnp.zeros((axis_size * size,), jnp.float32).at[flat.reshape(-1)].add(1.0)
+        return out.reshape(axis_size, size), True
+
+    return counts
 
 
 def colour_histogram(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
@@ -505,28 +535,29 @@ def colour_histogram(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndar
     if soft and ctx.params.get("space", "rgb") != "rgb":
         raise ValueError("soft colour histograms need space='rgb'")
     sqrt_ref = jnp.sqrt(ctx.ref)  # (V, R, B)
-    if soft:
-        rgb, inside = _surface_rgb(obs, g, ctx)
-        w = (g.surface_facing & inside).astype(rgb[0].dtype)
-        onehot = _soft_bin_weights(rgb, bins)  # (V, P, B)
-    else:
-        w = (g.surface_facing & g.surface_inside).astype(jnp.float32)
-        b = maps.gather(ctx.aux["bins"], g.surface_index, raw=True).astype(jnp.int32)  # (V, P)
-    V = w.shape[0]
     if not soft:
-        # one scatter-add for every ROI (cost independent of the number of bins and ROIs): point p adds w_p to
-        # slot roi(p)·B + b_p; points outside the ROIs go to a spare last slot
+        # one gather reads the colour and the visibility of every sample (-1: hidden or outside the image), and
+        # one scatter-add counts every ROI (cost independent of the number of bins and ROIs): a visible point
+        # adds 1 to slot roi(p)·B + b_p; hidden points and points outside the ROIs go to a spare last slot
+        packed = _visible_rgb(g, ctx)  # (V, P)
+        V = packed.shape[0]
+        b = _channel_bins(*_unpack_bytes(packed), bins, ctx.params.get("space", "rgb"))
         roi = np.full(len(ctx.surface_segment), len(segs), np.int32)
         for r, s in enumerate(segs):
             sl = _segment_points(ctx, s)
             roi[sl] = r
-        slot = jnp.asarray(roi * B)[None, :] + b  # (V, P)
-        h = jnp.zeros((V, (len(segs) + 1) * B), w.dtype).at[jnp.arange(V)[:, None], slot].add(w)
-        h = h[:, : len(segs) * B].reshape(V, len(segs), B)
+        spare = len(segs) * B
+        slot = jnp.where(packed >= 0, jnp.asarray(roi * B)[None, :] + b, spare)  # (V, P)
+        slot = jnp.minimum(slot, spare) + jnp.arange(V, dtype=jnp.int32)[:, None] * (spare + 1)
+        h = _counter(V * (spare + 1))(slot).reshape(V, spare + 1)
+        h = h[:, :spare].reshape(V, len(segs), B)
         n = jnp.sum(h, axis=-1)  # (V, R)
         h = h / jnp.maximum(n, 1e-12)[..., None]
         bc = jnp.sum(jnp.sqrt(h) * sqrt_ref, axis=-1)
         return jnp.sum(jnp.where(n > 0, jnp.clip(1.0 - bc, 0.0, 1.0), 1.0), axis=-1) / (2.0 * sigma * sigma)
+    rgb, inside = _surface_rgb(obs, g, ctx)
+    w = (g.surface_facing & inside).astype(rgb[0].dtype)
+    onehot = _soft_bin_weights(rgb, bins)  # (V, P, B)
     total = 0.0
     for r, s in enumerate(segs):
         sl = _segment_points(ctx, s)
@@ -547,8 +578,13 @@ def homogeneous_colour(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.nd
     camera-facing in-image surface samples. ``E_v = D² / (2σ_h²)``, σ_h = ``sigma`` (default 0.1). A limb with
     fewer than two visible samples is left out of the mean. Differentiable with ``bilinear=True``."""
     sigma = ctx.params.get("sigma", 0.1)
-    rgb, inside = _surface_rgb(obs, g, ctx)
-    w = (g.surface_facing & inside).astype(rgb[0].dtype)
+    if ctx.params.get("bilinear", False):
+        rgb, inside = _surface_rgb(obs, g, ctx)
+        w = (g.surface_facing & inside).astype(rgb[0].dtype)
+    else:  # one gather: colour and visibility (-1) together
+        packed = _visible_rgb(g, ctx)
+        rgb = _unpack_rgb(packed)
+        w = (packed >= 0).astype(jnp.float32)
     runs = [_segment_points(ctx, s) for s in _segment_ids(ctx, ctx.params.get("segments"), "limbs")]
 
     def limb_sums(a):  # (V, P) -> (V, L): sums over each limb's contiguous run of points (static slices)
@@ -813,7 +849,7 @@ CUES: dict[str, CueSpec] = {
         _fixed("surface", "surface_index", "facing"),
         ("rgb",),
         "soft",
-        _prepare_histogram,
+        _prepare_colour,
         "histogram",
     ),
     "homogeneous_colour": CueSpec(

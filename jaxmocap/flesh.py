@@ -54,6 +54,16 @@ def _dot(a: jnp.ndarray, b: jnp.ndarray) -> jnp.ndarray:
     return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
 
 
+def _solve3(A: jnp.ndarray, b: jnp.ndarray) -> jnp.ndarray:
+    """``A⁻¹ b`` for ``A (..., 3, 3)``, ``b (..., 3)`` by Cramer's rule: ``x = (c₀ · b, c₁ · b, c₂ · b) / det A``
+    with ``c_i`` the rows of the adjugate (cross products of the columns). Element-wise arithmetic that XLA fuses;
+    ``jnp.linalg.solve`` is an LU factorisation call per matrix."""
+    a0, a1, a2 = A[..., :, 0], A[..., :, 1], A[..., :, 2]
+    c0, c1, c2 = _cross(a1, a2), _cross(a2, a0), _cross(a0, a1)
+    det = _dot(a0, c0)
+    return jnp.stack([_dot(c0, b), _dot(c1, b), _dot(c2, b)], -1) / det[..., None]
+
+
 def _cross(a: jnp.ndarray, b: jnp.ndarray) -> jnp.ndarray:
     return jnp.stack(
         [
@@ -472,7 +482,7 @@ def ellipsoid_contours(
       ``(E, k, 3)`` points ``centre + axes @ (c'/|c'|² + ρ (cos θ_i f₁ + sin θ_i f₂))``, ``θ_i = 2π i/k``, with
       ``c' = axes⁻¹ (camera_centre − centre)``, ``ρ = √(1 − 1/|c'|²)`` and ``f₁, f₂ ⟂ c'`` (polar plane of ``c'``).
     """
-    y = jnp.linalg.solve(axes, (camera_centre - centre)[..., None])[..., 0]
+    y = _solve3(axes, camera_centre - centre)
     n2 = jnp.maximum(_dot(y, y), 1e-12)
     n = jnp.sqrt(n2)
     f1, f2 = orthonormal_basis(y / n[:, None])
@@ -483,7 +493,8 @@ def ellipsoid_contours(
     circ = (y / n2[:, None])[:, None, :] + rho[:, None, None] * (
         jnp.cos(th)[None, :, None] * f1[:, None] + jnp.sin(th)[None, :, None] * f2[:, None]
     )  # (E, k, 3)
-    return centre[:, None, :] + jnp.einsum("eij,ekj->eki", axes, circ)
+    # axes @ circ written out (a batched 3×3 product is a library call per particle on XLA's CPU backend)
+    return centre[:, None, :] + sum(axes[:, None, :, j] * circ[..., j, None] for j in range(3))
 
 
 @functools.partial(jax.jit, static_argnames="k")

@@ -279,6 +279,40 @@ def segment_poses(
     return R_out, t_out
 
 
+#: At most this many runs of equal segment index: :func:`transform_points` uses static slices, beyond it a gather.
+MAX_RUNS = 64
+
+
+def segment_runs(segment_of_point: Sequence[int] | np.ndarray) -> list[tuple[int, int, int]]:
+    """``(start, stop, segment)`` of each maximal run of consecutive points on the same segment (static)."""
+    seg = np.asarray(segment_of_point, dtype=np.int64).reshape(-1)
+    if seg.size == 0:
+        return []
+    cuts = np.flatnonzero(np.diff(seg)) + 1
+    starts = np.concatenate([[0], cuts])
+    stops = np.concatenate([cuts, [seg.size]])
+    return [(int(a), int(b), int(seg[a])) for a, b in zip(starts, stops, strict=True)]
+
+
+def apply_by_runs(A: jnp.ndarray, b: jnp.ndarray, points: jnp.ndarray, runs) -> list[jnp.ndarray]:
+    """Affine maps of the frames applied to the points of each run: the three coordinates ``(..., P)`` of
+    ``A_{s(p)} p + b_{s(p)}`` for ``A (..., S, 3, 3)``, ``b (..., S, 3)``, ``points (P, 3)`` and the runs of
+    :func:`segment_runs` (one broadcast per run and coordinate, concatenated; no per-point gather)."""
+    out = []
+    for i in range(3):
+        pieces = []
+        for start, stop, s in runs:
+            p = points[start:stop]
+            pieces.append(
+                A[..., s, i, 0, None] * p[:, 0]
+                + A[..., s, i, 1, None] * p[:, 1]
+                + A[..., s, i, 2, None] * p[:, 2]
+                + b[..., s, i, None]
+            )
+        out.append(pieces[0] if len(pieces) == 1 else jnp.concatenate(pieces, -1))
+    return out
+
+
 def transform_points(
     R: jnp.ndarray, t: jnp.ndarray, points: jnp.ndarray, segment_of_point: Sequence[int] | np.ndarray
 ) -> jnp.ndarray:
@@ -292,10 +326,13 @@ def transform_points(
     Returns:
       ``(..., P, 3)``, computed per coordinate over ``(..., P)`` arrays.
 
-    The result passes through ``lax.optimization_barrier``: without it XLA fuses the per-point gather into every
-    consumer (a projection reads each coordinate several times) and recomputes it there — measured 3.7× slower
-    for FK + projection (``benchmarks/bench_kinematics.py``).
+    Points stored segment by segment (at most :data:`MAX_RUNS` runs, as flesh samples are) are moved one run at a
+    time with static slices (:func:`apply_by_runs`); other layouts gather each point's transform. The result passes
+    through ``lax.optimization_barrier`` (which XLA's CPU compiler drops, see :mod:`jaxmocap.maps`).
     """
+    runs = segment_runs(segment_of_point)
+    if 0 < len(runs) <= MAX_RUNS:
+        return jax.lax.optimization_barrier(jnp.stack(apply_by_runs(R, t, points, runs), -1))
     seg = np.asarray(segment_of_point, dtype=np.int32)
     Rp = R[..., seg, :, :]
     tp = t[..., seg, :]

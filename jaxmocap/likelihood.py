@@ -250,19 +250,46 @@ class Likelihood:
                 g["joints_uv"] = camera.project(self.rig, pose["joints"])
         if needs & {"surface", "surface_index", "facing"}:
             X = kinematics.transform_points(R, t, self.surface.local, self.surface.segment)
-            uv, z = camera.project_with_depth(self.rig, X)
+            runs = kinematics.segment_runs(self.surface.segment)
+            n, p = self.surface.normal, self.surface.local
+            if len(runs) <= kinematics.MAX_RUNS:
+                # points stored segment by segment: camera-from-segment transforms A_vs = R_v R_s,
+                # b_vs = R_v t_s + t_v applied run by run (no world points in between, no per-point gather)
+                Rc = jnp.asarray(self.rig.R, R.dtype)
+                tc = jnp.asarray(self.rig.t, R.dtype)
+                # (sums of three products written out: XLA's CPU backend hands a reduction over 3 to a library)
+                A = sum(Rc[:, None, :, j, None] * R[None, :, None, j, :] for j in range(3))  # (V, S, 3, 3)
+                b = sum(Rc[:, None, :, j] * t[None, :, None, j] for j in range(3)) + tc[:, None]  # (V, S, 3)
+                uv, z = camera.pixels_from_camera(self.rig, *kinematics.apply_by_runs(A, b, p, runs))
+            else:
+                uv, z = camera.project_with_depth(self.rig, X)
             if "facing" in needs:
                 # n·(c_v − X) > 0 in the segment frame: n_p·c_v,s(p) − n_p·p_p with c_v,s = R_sᵀ (c_v − t_s) the
                 # camera centre in segment s's frame (V·S vectors per particle instead of P rotated normals)
-                seg = np.asarray(self.surface.segment, np.int32)
-                n, p = self.surface.normal, self.surface.local
-                cl = pose["camera_local"][:, seg]  # (V, P, 3)
-                nc = cl[..., 0] * n[:, 0] + cl[..., 1] * n[:, 1] + cl[..., 2] * n[:, 2]
+                cl = pose["camera_local"]  # (V, S, 3)
+                if len(runs) <= kinematics.MAX_RUNS:
+                    nc = jnp.concatenate(
+                        [
+                            cl[:, s, 0, None] * n[a:e, 0]
+                            + cl[:, s, 1, None] * n[a:e, 1]
+                            + cl[:, s, 2, None] * n[a:e, 2]
+                            for a, e, s in runs
+                        ],
+                        -1,
+                    )
+                else:
+                    cl = cl[:, np.asarray(self.surface.segment, np.int32)]  # (V, P, 3)
+                    nc = cl[..., 0] * n[:, 0] + cl[..., 1] * n[:, 1] + cl[..., 2] * n[:, 2]
                 npp = n[:, 0] * p[:, 0] + n[:, 1] * p[:, 1] + n[:, 2] * p[:, 2]
                 g["surface_facing"] = (nc > npp) & (z > 0)
             g.update(surface=X, surface_uv=uv, surface_depth=z)
             if "surface_index" in needs and image_shape is not None:
-                g["surface_index"], g["surface_inside"] = maps.nearest_index(uv, (V,) + tuple(image_shape))
+                shape = (V,) + tuple(image_shape)
+                g["surface_index"], g["surface_inside"] = maps.nearest_index(uv, shape)
+                if "facing" in needs:
+                    g["surface_visible_index"] = maps.visible_index(
+                        g["surface_index"], g["surface_facing"] & g["surface_inside"], shape
+                    )
         if "primitives" in pose:
             g["primitives"] = pose["primitives"]
         if "contour" in pose:

@@ -154,6 +154,14 @@ def test_transform_points_matches_per_point_products():
     t = jnp.asarray(rng.normal(size=(2, 5, 3)), jnp.float32)
     pts = jnp.asarray(rng.normal(size=(7, 3)), jnp.float32)
     seg = np.asarray([0, 0, 1, 2, 3, 4, 4])
+    assert kinematics.segment_runs(seg) == [(0, 2, 0), (2, 3, 1), (3, 4, 2), (4, 5, 3), (5, 7, 4)]
+    out = np.asarray(kinematics.transform_points(R, t, pts, seg))
+    ref = np.einsum("npij,pj->npi", np.asarray(R)[:, seg], np.asarray(pts)) + np.asarray(t)[:, seg]
+    np.testing.assert_allclose(out, ref, atol=1e-5)
+    # interleaved segments (more runs than MAX_RUNS: the per-point gather) give the same products
+    seg = np.arange(2 * kinematics.MAX_RUNS + 1) % 5
+    pts = jnp.asarray(rng.normal(size=(seg.size, 3)), jnp.float32)
+    assert len(kinematics.segment_runs(seg)) > kinematics.MAX_RUNS
     out = np.asarray(kinematics.transform_points(R, t, pts, seg))
     ref = np.einsum("npij,pj->npi", np.asarray(R)[:, seg], np.asarray(pts)) + np.asarray(t)[:, seg]
     np.testing.assert_allclose(out, ref, atol=1e-5)

@@ -66,6 +66,27 @@ def sweep(scene):
     return lik, f
 
 
+def test_surface_geometry_by_runs_equals_world_projection(scene):
+    """The camera-from-segment transforms applied run by run give the projection of the world flesh points
+    (transform_points, then camera.project_with_depth), and the visible index marks exactly the samples that face
+    the camera (outward normal towards its centre) and lie in the image."""
+    model, rig, x, obs = scene
+    lik = L.Likelihood.create(model, rig, [L.Cue("depth")], surface_points=300)
+    g = lik.geometry(x, (H, W))
+    R, t = body.segment_poses(model, x)
+    Xw, Nw = lik.surface.world(R, t)
+    uv, z = camera.project_with_depth(rig, Xw)
+    np.testing.assert_allclose(np.asarray(g.surface_uv), np.asarray(uv), atol=2e-3)
+    np.testing.assert_allclose(np.asarray(g.surface_depth), np.asarray(z), atol=1e-5)
+    C = np.asarray(camera.camera_centres(rig))
+    facing = np.einsum("pi,vpi->vp", np.asarray(Nw), C[:, None] - np.asarray(Xw)[None]) > 0
+    np.testing.assert_array_equal(np.asarray(g.surface_facing), facing & (np.asarray(z) > 0))
+    seen = np.asarray(g.surface_facing & g.surface_inside)
+    vis = np.asarray(g.surface_visible_index)
+    np.testing.assert_array_equal(vis[seen], np.asarray(g.surface_index)[seen])
+    assert np.all(vis[~seen] == rig.num_views * H * W) and 0.2 < seen.mean() < 0.8
+
+
 @pytest.mark.parametrize("dof", ["left_elbow", "left_shoulder_rx"])
 def test_energy_minimum_near_truth(scene, sweep, dof):
     """Sweeps of one arm angle (IROS 2007 Fig. 1, thesis Fig. 4.3): the unambiguous cues — the contour cues and the

@@ -52,6 +52,26 @@ def test_shared_index_reads_every_dtype_and_channels():
     np.testing.assert_array_equal(np.asarray(maps.gather(jnp.asarray(M3), idx)), M3[view, iv, iu])
 
 
+def test_visible_index_reads_the_sentinel():
+    """A hidden sample's index points one past the flattened maps; read from a map with that entry appended it
+    returns the fill value, a visible one its pixel."""
+    rng = np.random.default_rng(5)
+    V, H, W = 2, 9, 12
+    M = rng.integers(0, 1 << 24, size=(V, H, W)).astype(np.int32)
+    uv = rng.uniform([-3, -3], [W + 3, H + 3], size=(4, V, 30, 2)).astype(np.float32)
+    seen = rng.uniform(size=(4, V, 30)) < 0.6
+    idx, inside = maps.nearest_index(jnp.asarray(uv), (V, H, W))
+    vis = maps.visible_index(idx, jnp.asarray(seen) & inside, (V, H, W))
+    flat = maps.with_sentinel(jnp.asarray(M), -1)
+    assert flat.shape == (V * H * W + 1,) and int(flat[-1]) == -1
+    got = np.asarray(maps.gather(flat, vis, raw=True))
+    iu = np.clip(np.floor(uv[..., 0] + 0.5), 0, W - 1).astype(int)
+    iv = np.clip(np.floor(uv[..., 1] + 0.5), 0, H - 1).astype(int)
+    ref = np.where(seen & np.asarray(inside), M[np.arange(V)[None, :, None], iv, iu], -1)
+    np.testing.assert_array_equal(got, ref)
+    assert 0 < np.mean(ref == -1) < 1
+
+
 def test_bilinear_matches_cv2_remap():
     rng = np.random.default_rng(1)
     M = _maps(rng)
