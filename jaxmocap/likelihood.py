@@ -11,10 +11,12 @@ way.
 
 Evaluation (:meth:`Likelihood.batch`, what the filters call):
 
-1. ``prepare``: everything that depends on the observation only (masked depth, colour bins, foreground samples)
-   is computed once per call;
-2. geometry per particle (:meth:`Likelihood.geometry`): FK, flesh points, projection, facing test and one shared
-   nearest-pixel index per sample set, computed once for all cues;
+1. ``prepare``: everything that depends on the observation only (masked depth, packed colours, foreground
+   samples) is computed once per call;
+2. geometry per particle (:meth:`Likelihood.geometry`): FK, flesh points (run by run of points on one segment,
+   straight into camera coordinates), projection, facing test, one shared nearest-pixel index per sample set and
+   the visible index through which one gather reads a colour and whether the sample is seen, computed once for all
+   cues;
 3. particles are processed in chunks of ``chunk_size`` (``lax.map`` over vmapped chunks), so that the
    ``(chunk, V, P)`` intermediates stay in cache — on CPU this is 2–3× faster than one vmap over all particles.
 
@@ -241,7 +243,6 @@ class Likelihood:
     def geometry_from_pose(self, pose: dict, image_shape: tuple[int, int] | None = None) -> cues.Geometry:
         """Projected geometry of one particle from its :meth:`pose_stage` (see :meth:`geometry`)."""
         needs = self._needs()
-        R, t = pose["R"], pose["t"]
         V = self.rig.num_views
         g = {}
         if "joints" in pose:
@@ -249,47 +250,7 @@ class Likelihood:
             if "joints_uv" in needs:
                 g["joints_uv"] = camera.project(self.rig, pose["joints"])
         if needs & {"surface", "surface_index", "facing"}:
-            X = kinematics.transform_points(R, t, self.surface.local, self.surface.segment)
-            runs = kinematics.segment_runs(self.surface.segment)
-            n, p = self.surface.normal, self.surface.local
-            if len(runs) <= kinematics.MAX_RUNS:
-                # points stored segment by segment: camera-from-segment transforms A_vs = R_v R_s,
-                # b_vs = R_v t_s + t_v applied run by run (no world points in between, no per-point gather)
-                Rc = jnp.asarray(self.rig.R, R.dtype)
-                tc = jnp.asarray(self.rig.t, R.dtype)
-                # (sums of three products written out: XLA's CPU backend hands a reduction over 3 to a library)
-                A = sum(Rc[:, None, :, j, None] * R[None, :, None, j, :] for j in range(3))  # (V, S, 3, 3)
-                b = sum(Rc[:, None, :, j] * t[None, :, None, j] for j in range(3)) + tc[:, None]  # (V, S, 3)
-                uv, z = camera.pixels_from_camera(self.rig, *kinematics.apply_by_runs(A, b, p, runs))
-            else:
-                uv, z = camera.project_with_depth(self.rig, X)
-            if "facing" in needs:
-                # n·(c_v − X) > 0 in the segment frame: n_p·c_v,s(p) − n_p·p_p with c_v,s = R_sᵀ (c_v − t_s) the
-                # camera centre in segment s's frame (V·S vectors per particle instead of P rotated normals)
-                cl = pose["camera_local"]  # (V, S, 3)
-                if len(runs) <= kinematics.MAX_RUNS:
-                    nc = jnp.concatenate(
-                        [
-                            cl[:, s, 0, None] * n[a:e, 0]
-                            + cl[:, s, 1, None] * n[a:e, 1]
-                            + cl[:, s, 2, None] * n[a:e, 2]
-                            for a, e, s in runs
-                        ],
-                        -1,
-                    )
-                else:
-                    cl = cl[:, np.asarray(self.surface.segment, np.int32)]  # (V, P, 3)
-                    nc = cl[..., 0] * n[:, 0] + cl[..., 1] * n[:, 1] + cl[..., 2] * n[:, 2]
-                npp = n[:, 0] * p[:, 0] + n[:, 1] * p[:, 1] + n[:, 2] * p[:, 2]
-                g["surface_facing"] = (nc > npp) & (z > 0)
-            g.update(surface=X, surface_uv=uv, surface_depth=z)
-            if "surface_index" in needs and image_shape is not None:
-                shape = (V,) + tuple(image_shape)
-                g["surface_index"], g["surface_inside"] = maps.nearest_index(uv, shape)
-                if "facing" in needs:
-                    g["surface_visible_index"] = maps.visible_index(
-                        g["surface_index"], g["surface_facing"] & g["surface_inside"], shape
-                    )
+            g.update(self._surface_geometry(pose, image_shape, needs))
         if "primitives" in pose:
             g["primitives"] = pose["primitives"]
         if "contour" in pose:
@@ -299,12 +260,71 @@ class Likelihood:
                 g["contour_index"], g["contour_inside"] = maps.nearest_index(quv, (V,) + tuple(image_shape))
         return cues.Geometry(**g)
 
+    def _surface_geometry(self, pose: dict, image_shape, needs) -> dict:
+        """The flesh-point fields of :class:`jaxmocap.cues.Geometry` (world points, pixels, depth, facing, indices).
+
+        Points stored segment by segment (at most :data:`jaxmocap.kinematics.MAX_RUNS` runs) go run by run: the
+        camera-from-segment transform ``A_vs = R_v R_s``, ``b_vs = R_v t_s + t_v`` maps the run's local points to
+        camera coordinates (no world points in between, no per-point gather of transforms), every field of the run
+        is computed from them, and each field is concatenated over the runs at the end, so that XLA materialises
+        the final fields only (on its CPU backend a concatenation of intermediate coordinates was copied, and the
+        projection recomputed in every consumer). Other layouts project the world points.
+
+        Facing: ``n·(c_v − X) > 0`` in the segment frame, ``n_p·c_v,s(p) > n_p·p_p`` with ``c_v,s = R_sᵀ(c_v − t_s)``
+        the camera centre in segment ``s``'s frame (``camera_local`` of :meth:`pose_stage`), and in front of it.
+        """
+        R, t = pose["R"], pose["t"]
+        V = self.rig.num_views
+        n, p = self.surface.normal, self.surface.local
+        npp = n[:, 0] * p[:, 0] + n[:, 1] * p[:, 1] + n[:, 2] * p[:, 2]
+        facing = "facing" in needs
+        shape = (V,) + tuple(image_shape) if "surface_index" in needs and image_shape is not None else None
+
+        def fields(uv, z, nc, npp):
+            out = {"surface_uv": uv, "surface_depth": z}
+            if facing:
+                out["surface_facing"] = (nc > npp) & (z > 0)
+            if shape is not None:
+                out["surface_index"], out["surface_inside"] = maps.nearest_index(uv, shape)
+                if facing:
+                    out["surface_visible_index"] = maps.visible_index(
+                        out["surface_index"], out["surface_facing"] & out["surface_inside"], shape
+                    )
+            return out
+
+        def normal_dot(cl, nr):  # (V, ..., 3) · (..., 3) written out
+            return cl[..., 0] * nr[:, 0] + cl[..., 1] * nr[:, 1] + cl[..., 2] * nr[:, 2]
+
+        cl = pose.get("camera_local")  # (V, S, 3)
+        runs = kinematics.segment_runs(self.surface.segment)
+        if len(runs) <= kinematics.MAX_RUNS:
+            Rc = jnp.asarray(self.rig.R, R.dtype)
+            tc = jnp.asarray(self.rig.t, R.dtype)
+            # (sums of three products written out: XLA's CPU backend hands a reduction over 3 to a library)
+            A = sum(Rc[:, None, :, j, None] * R[None, :, None, j, :] for j in range(3))  # (V, S, 3, 3)
+            b = sum(Rc[:, None, :, j] * t[None, :, None, j] for j in range(3)) + tc[:, None]  # (V, S, 3)
+            parts = []
+            for start, stop, s in runs:
+                cam = kinematics.apply_by_runs(A, b, p[start:stop], [(0, stop - start, s)])
+                uv, z = camera.pixels_from_camera(self.rig, *cam)
+                nc = normal_dot(cl[:, s, None, :], n[start:stop]) if facing else None
+                parts.append(fields(uv, z, nc, npp[start:stop]))
+            out = {k: jnp.concatenate([q[k] for q in parts], axis=1) for k in parts[0]}
+        else:
+            X = kinematics.transform_points(R, t, p, self.surface.segment)
+            uv, z = camera.project_with_depth(self.rig, X)
+            nc = normal_dot(cl[:, np.asarray(self.surface.segment, np.int32)], n) if facing else None
+            out = fields(uv, z, nc, npp)
+        # world points (XLA drops them when no cue reads them)
+        out["surface"] = kinematics.transform_points(R, t, p, self.surface.segment)
+        return out
+
     def geometry(self, x: jnp.ndarray, image_shape: tuple[int, int] | None = None) -> cues.Geometry:
         """Projected geometry of one particle ``x (D,)`` — only the parts the cues need.
 
         ``image_shape``: ``(H, W)`` of the observation's maps, for the shared nearest-pixel indices (left out when
-        None). The indices pass through ``lax.optimization_barrier`` (:mod:`jaxmocap.maps`) so that XLA computes
-        them once rather than fusing them into (and recomputing them in) each gather.
+        None). How the flesh-point fields are laid out for XLA's CPU backend: :meth:`_surface_geometry` and
+        :mod:`jaxmocap.maps`.
         """
         return self.geometry_from_pose(self.pose_stage(x), image_shape)
 
