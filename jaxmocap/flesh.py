@@ -435,19 +435,13 @@ def interior_points(model: BodyModel, levels: int = 3, around: int = 4, fraction
 # Occluding contours
 
 
-@functools.partial(jax.jit, static_argnames="k")
-def cone_contours(
-    a: jnp.ndarray, b: jnp.ndarray, r_a: jnp.ndarray, r_b: jnp.ndarray, centre: jnp.ndarray, k: int
-) -> jnp.ndarray:
-    """The two silhouette generators of truncated cones seen from ``centre``, ``k`` points on each.
-
-    Args:
-      a, b: ``(C, 3)`` axis end points; r_a, r_b: ``(C,)`` radii; centre: ``(3,)`` camera centre; k: static.
-
-    Returns:
-      ``(C, 2, k, 3)``: ``[:, j, i] = a + s_i (b − a) + (r_a + s_i Δ) u_j``, ``s_i = i/(k−1)``, ``u_j = u±`` of the
-      module docstring (generator 0 is ``u₊``: on the ``+â × d̂⊥`` side).
-    """
+def cone_contour_lines(
+    a: jnp.ndarray, b: jnp.ndarray, r_a: jnp.ndarray, r_b: jnp.ndarray, centre: jnp.ndarray
+) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """The two silhouette generators of truncated cones seen from ``centre`` as segments ``start + s·step``,
+    ``s ∈ [0, 1]``: ``start = a + r_a u_j``, ``step = L â + Δ u_j`` (``(C, 2, 3)`` each; see
+    :func:`cone_contours`, which samples them). Eight vectors per cone instead of its ``2k`` points: the
+    likelihood keeps these for all particles and samples the points where it projects them."""
     ahat, L = axis_length(a, b)
     e1, _ = orthonormal_basis(ahat)
     d = centre - a
@@ -463,10 +457,61 @@ def cone_contours(
     u = jnp.stack(
         [gamma[:, None] * dhat + sin_g[:, None] * side, gamma[:, None] * dhat - sin_g[:, None] * side], 1
     )  # (C, 2, 3)
-    s = jnp.linspace(0.0, 1.0, k, dtype=a.dtype) if k > 1 else jnp.zeros((1,), a.dtype)
-    axis_pts = a[:, None, :] + (s[None, :, None] * L[:, None, None]) * ahat[:, None, :]  # (C, k, 3)
-    radius = r_a[:, None] + s[None, :] * delta[:, None]  # (C, k)
-    return axis_pts[:, None] + radius[:, None, :, None] * u[:, :, None, :]
+    start = a[:, None, :] + r_a[:, None, None] * u
+    step = (L[:, None] * ahat)[:, None, :] + delta[:, None, None] * u
+    return start, step
+
+
+def contour_line_points(start: jnp.ndarray, step: jnp.ndarray, k: int) -> jnp.ndarray:
+    """``k`` points ``start + s_i step``, ``s_i = i/(k−1)`` (``s = 0`` for ``k = 1``) on each segment:
+    ``(..., 3)`` → ``(..., k, 3)``."""
+    s = jnp.linspace(0.0, 1.0, k, dtype=start.dtype) if k > 1 else jnp.zeros((1,), start.dtype)
+    return start[..., None, :] + s[:, None] * step[..., None, :]
+
+
+@functools.partial(jax.jit, static_argnames="k")
+def cone_contours(
+    a: jnp.ndarray, b: jnp.ndarray, r_a: jnp.ndarray, r_b: jnp.ndarray, centre: jnp.ndarray, k: int
+) -> jnp.ndarray:
+    """The two silhouette generators of truncated cones seen from ``centre``, ``k`` points on each.
+
+    Args:
+      a, b: ``(C, 3)`` axis end points; r_a, r_b: ``(C,)`` radii; centre: ``(3,)`` camera centre; k: static.
+
+    Returns:
+      ``(C, 2, k, 3)``: ``[:, j, i] = a + s_i (b − a) + (r_a + s_i Δ) u_j``, ``s_i = i/(k−1)``, ``u_j = u±`` of the
+      module docstring (generator 0 is ``u₊``: on the ``+â × d̂⊥`` side).
+    """
+    return contour_line_points(*cone_contour_lines(a, b, r_a, r_b, centre), k)
+
+
+def ellipsoid_contour_frames(
+    centre: jnp.ndarray, axes: jnp.ndarray, camera_centre: jnp.ndarray
+) -> tuple[jnp.ndarray, jnp.ndarray, jnp.ndarray]:
+    """The occluding contour of ellipsoids as the ellipse ``c₀ + cos θ e₁ + sin θ e₂`` (``(E, 3)`` each; see
+    :func:`ellipsoid_contours`): ``c₀ = centre + axes c'/|c'|²``, ``e_i = ρ axes f_i``."""
+    y = _solve3(axes, camera_centre - centre)
+    n2 = jnp.maximum(_dot(y, y), 1e-12)
+    n = jnp.sqrt(n2)
+    f1, f2 = orthonormal_basis(y / n[:, None])
+    v = 1.0 - 1.0 / n2
+    pos = v > 1e-12
+    rho = jnp.where(pos, jnp.sqrt(jnp.where(pos, v, 1.0)), 0.0)
+
+    def mul(
+        w,
+    ):  # axes @ w written out (a batched 3×3 product is a library call per particle on XLA's CPU backend)
+        return sum(axes[..., :, j] * w[..., j, None] for j in range(3))
+
+    return centre + mul(y / n2[:, None]), mul(rho[:, None] * f1), mul(rho[:, None] * f2)
+
+
+def ellipse_points(c0: jnp.ndarray, e1: jnp.ndarray, e2: jnp.ndarray, k: int) -> jnp.ndarray:
+    """``k`` points ``c₀ + cos θ_i e₁ + sin θ_i e₂``, ``θ_i = 2π i/k``: ``(..., 3)`` → ``(..., k, 3)``."""
+    th = 2.0 * jnp.pi * jnp.arange(k, dtype=c0.dtype) / k
+    return (
+        c0[..., None, :] + jnp.cos(th)[:, None] * e1[..., None, :] + jnp.sin(th)[:, None] * e2[..., None, :]
+    )
 
 
 @functools.partial(jax.jit, static_argnames="k")
@@ -482,19 +527,7 @@ def ellipsoid_contours(
       ``(E, k, 3)`` points ``centre + axes @ (c'/|c'|² + ρ (cos θ_i f₁ + sin θ_i f₂))``, ``θ_i = 2π i/k``, with
       ``c' = axes⁻¹ (camera_centre − centre)``, ``ρ = √(1 − 1/|c'|²)`` and ``f₁, f₂ ⟂ c'`` (polar plane of ``c'``).
     """
-    y = _solve3(axes, camera_centre - centre)
-    n2 = jnp.maximum(_dot(y, y), 1e-12)
-    n = jnp.sqrt(n2)
-    f1, f2 = orthonormal_basis(y / n[:, None])
-    v = 1.0 - 1.0 / n2
-    pos = v > 1e-12
-    rho = jnp.where(pos, jnp.sqrt(jnp.where(pos, v, 1.0)), 0.0)
-    th = 2.0 * jnp.pi * jnp.arange(k, dtype=centre.dtype) / k
-    circ = (y / n2[:, None])[:, None, :] + rho[:, None, None] * (
-        jnp.cos(th)[None, :, None] * f1[:, None] + jnp.sin(th)[None, :, None] * f2[:, None]
-    )  # (E, k, 3)
-    # axes @ circ written out (a batched 3×3 product is a library call per particle on XLA's CPU backend)
-    return centre[:, None, :] + sum(axes[:, None, :, j] * circ[..., j, None] for j in range(3))
+    return ellipse_points(*ellipsoid_contour_frames(centre, axes, camera_centre), k)
 
 
 @functools.partial(jax.jit, static_argnames="k")

@@ -199,7 +199,8 @@ class Likelihood:
 
     def pose_stage(self, x: jnp.ndarray) -> dict:
         """The small per-particle part of the geometry of ``x (D,)``: segment poses ``R, t``, and as the cues need
-        them the joints ``(J, 3)``, the world primitives and each view's occluding-contour points ``(V, Q, 3)``.
+        them the joints ``(J, 3)``, the world primitives and each view's occluding contours (cone generators as lines,
+        ellipsoid outlines as ellipses; sampled by :meth:`_contour_points`).
 
         :meth:`batch` runs this over all particles at once (many small operations: better amortised over a large
         batch) and :meth:`geometry_from_pose` in chunks (long per-point arrays: better kept in cache).
@@ -224,21 +225,30 @@ class Likelihood:
         if needs & {"contour", "contour_index", "primitives"}:
             out["primitives"] = prims = flesh.world_primitives(self.model, R, t)
         if needs & {"contour", "contour_index"}:
-            V, k = self.rig.num_views, self.contour_points
+            # the contours as lines and ellipses per view (a few vectors per primitive); their points are sampled
+            # in geometry_from_pose, next to the projection that reads them
             Cc = camera.camera_centres(self.rig).astype(R.dtype)
-            pts = []
             if prims.num_cones:
-                pc = jax.vmap(
-                    lambda c: flesh.cone_contours(prims.cone_a, prims.cone_b, prims.r_a, prims.r_b, c, k)
-                )(Cc)
-                pts.append(pc.reshape(V, -1, 3))
+                out["contour_lines"] = jax.vmap(
+                    lambda c: flesh.cone_contour_lines(prims.cone_a, prims.cone_b, prims.r_a, prims.r_b, c)
+                )(Cc)  # (V, C, 2, 3) twice
             if prims.num_ellipsoids:
-                pe = jax.vmap(lambda c: flesh.ellipsoid_contours(prims.ell_centre, prims.ell_axes, c, 2 * k))(
-                    Cc
-                )
-                pts.append(pe.reshape(V, -1, 3))
-            out["contour"] = jnp.concatenate(pts, axis=1)
+                out["contour_ellipses"] = jax.vmap(
+                    lambda c: flesh.ellipsoid_contour_frames(prims.ell_centre, prims.ell_axes, c)
+                )(Cc)  # (V, E, 3) three times
         return out
+
+    def _contour_points(self, pose: dict) -> jnp.ndarray:
+        """``(V, Q, 3)`` occluding-contour points of each view: ``contour_points`` on each cone generator, then
+        twice as many on each ellipsoid's outline (:func:`jaxmocap.flesh.cone_contours`,
+        :func:`jaxmocap.flesh.ellipsoid_contours`), from the lines and ellipses of :meth:`pose_stage`."""
+        V, k = self.rig.num_views, self.contour_points
+        pts = []
+        if "contour_lines" in pose:
+            pts.append(flesh.contour_line_points(*pose["contour_lines"], k).reshape(V, -1, 3))
+        if "contour_ellipses" in pose:
+            pts.append(flesh.ellipse_points(*pose["contour_ellipses"], 2 * k).reshape(V, -1, 3))
+        return jnp.concatenate(pts, axis=1) if len(pts) > 1 else pts[0]
 
     def geometry_from_pose(self, pose: dict, image_shape: tuple[int, int] | None = None) -> cues.Geometry:
         """Projected geometry of one particle from its :meth:`pose_stage` (see :meth:`geometry`)."""
@@ -253,8 +263,8 @@ class Likelihood:
             g.update(self._surface_geometry(pose, image_shape, needs))
         if "primitives" in pose:
             g["primitives"] = pose["primitives"]
-        if "contour" in pose:
-            quv = camera.project_per_view(self.rig, pose["contour"])
+        if needs & {"contour", "contour_index"}:
+            quv = camera.project_per_view(self.rig, self._contour_points(pose))
             g["contour_uv"] = quv
             if "contour_index" in needs and image_shape is not None:
                 g["contour_index"], g["contour_inside"] = maps.nearest_index(quv, (V,) + tuple(image_shape))

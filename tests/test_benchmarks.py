@@ -102,3 +102,22 @@ def test_every_benchmark_has_a_smoke_test():
 @pytest.mark.parametrize("name", sorted(set(runner.BENCHMARKS) - set(TRACKING)))
 def test_quick_benchmark_runs(name):
     check_quick_run(name)
+
+
+def test_profile_names_the_kernels_and_their_contents(tmp_path):
+    """The profiling tool reads XLA's kernel events from a JAX trace and the operations inside each fusion from
+    the compiled program (a tiny program whose one fusion holds a sine)."""
+    import jax
+    import jax.numpy as jnp
+    import profile_likelihood as prof
+
+    f = jax.jit(lambda x: jnp.sin(x) * 2.0 + 1.0)
+    x = jnp.linspace(0.0, 1.0, 1 << 16)
+    f(x).block_until_ready()
+    with jax.profiler.trace(str(tmp_path), create_perfetto_trace=True):
+        for _ in range(2):
+            f(x).block_until_ready()
+    times = prof.kernel_times(str(tmp_path), 2)
+    contents = prof.fusion_contents(f.lower(x).compile().as_text())
+    fused = [name for name, ops in contents.items() if ops["sine"] == 1 and ops["multiply"] >= 1]
+    assert fused and fused[0] in times and times[fused[0]] > 0
