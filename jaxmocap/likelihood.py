@@ -306,6 +306,7 @@ class Likelihood:
             return cl[..., 0] * nr[:, 0] + cl[..., 1] * nr[:, 1] + cl[..., 2] * nr[:, 2]
 
         cl = pose.get("camera_local")  # (V, S, 3)
+        X = kinematics.transform_points(R, t, p, self.surface.segment)  # world points (dropped when unused)
         runs = kinematics.segment_runs(self.surface.segment)
         if len(runs) <= kinematics.MAX_RUNS:
             Rc = jnp.asarray(self.rig.R, R.dtype)
@@ -321,12 +322,10 @@ class Likelihood:
                 parts.append(fields(uv, z, nc, npp[start:stop]))
             out = {k: jnp.concatenate([q[k] for q in parts], axis=1) for k in parts[0]}
         else:
-            X = kinematics.transform_points(R, t, p, self.surface.segment)
             uv, z = camera.project_with_depth(self.rig, X)
             nc = normal_dot(cl[:, np.asarray(self.surface.segment, np.int32)], n) if facing else None
             out = fields(uv, z, nc, npp)
-        # world points (XLA drops them when no cue reads them)
-        out["surface"] = kinematics.transform_points(R, t, p, self.surface.segment)
+        out["surface"] = X
         return out
 
     def geometry(self, x: jnp.ndarray, image_shape: tuple[int, int] | None = None) -> cues.Geometry:

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxmocap import body, camera, render
+from jaxmocap import body, camera, kinematics, render
 from jaxmocap import likelihood as L
 from jaxmocap.observation import make_observation
 from jaxmocap.synth import look_at
@@ -85,6 +85,13 @@ def test_surface_geometry_by_runs_equals_world_projection(scene):
     vis = np.asarray(g.surface_visible_index)
     np.testing.assert_array_equal(vis[seen], np.asarray(g.surface_index)[seen])
     assert np.all(vis[~seen] == rig.num_views * H * W) and 0.2 < seen.mean() < 0.8
+    # the per-point path (points not stored segment by segment) gives the same fields
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(kinematics, "MAX_RUNS", 0)
+        g2 = lik.geometry(x, (H, W))
+    np.testing.assert_allclose(np.asarray(g2.surface_uv), np.asarray(g.surface_uv), atol=2e-3)
+    for f in ("surface_facing", "surface_index", "surface_visible_index"):
+        assert np.mean(np.asarray(getattr(g2, f)) == np.asarray(getattr(g, f))) > 0.99
 
 
 @pytest.mark.parametrize("dof", ["left_elbow", "left_shoulder_rx"])
