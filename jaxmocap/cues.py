@@ -8,7 +8,7 @@ same form with ``λ_c = k_c ln A``.
 
 The geometry a cue reads (:class:`Geometry`) is computed once per particle for all cues; ``V`` views, ``P`` flesh
 surface points, ``Q`` occluding-contour points, ``J`` evaluation joints. Work that depends on the observation only
-(masked depth, colour bins, the foreground samples of the divergence cue) is done once per call by the cue's
+(masked depth, packed colours, the foreground samples of the divergence cue) is done once per call by the cue's
 ``prepare`` step, not once per particle.
 
 Cues by source (name — definition):

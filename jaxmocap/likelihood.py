@@ -286,7 +286,11 @@ class Likelihood:
         R, t = pose["R"], pose["t"]
         V = self.rig.num_views
         n, p = self.surface.normal, self.surface.local
-        npp = n[:, 0] * p[:, 0] + n[:, 1] * p[:, 1] + n[:, 2] * p[:, 2]
+
+        def dot3(a, b):  # a · b over the last axis, written out (broadcasting the leading axes)
+            return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+
+        npp = dot3(n, p)
         facing = "facing" in needs
         shape = (V,) + tuple(image_shape) if "surface_index" in needs and image_shape is not None else None
 
@@ -302,9 +306,6 @@ class Likelihood:
                     )
             return out
 
-        def normal_dot(cl, nr):  # (V, ..., 3) · (..., 3) written out
-            return cl[..., 0] * nr[:, 0] + cl[..., 1] * nr[:, 1] + cl[..., 2] * nr[:, 2]
-
         cl = pose.get("camera_local")  # (V, S, 3)
         X = kinematics.transform_points(R, t, p, self.surface.segment)  # world points (dropped when unused)
         runs = kinematics.segment_runs(self.surface.segment)
@@ -318,12 +319,12 @@ class Likelihood:
             for start, stop, s in runs:
                 cam = kinematics.apply_by_runs(A, b, p[start:stop], [(0, stop - start, s)])
                 uv, z = camera.pixels_from_camera(self.rig, *cam)
-                nc = normal_dot(cl[:, s, None, :], n[start:stop]) if facing else None
+                nc = dot3(cl[:, s, None, :], n[start:stop]) if facing else None
                 parts.append(fields(uv, z, nc, npp[start:stop]))
             out = {k: jnp.concatenate([q[k] for q in parts], axis=1) for k in parts[0]}
         else:
             uv, z = camera.project_with_depth(self.rig, X)
-            nc = normal_dot(cl[:, np.asarray(self.surface.segment, np.int32)], n) if facing else None
+            nc = dot3(cl[:, np.asarray(self.surface.segment, np.int32)], n) if facing else None
             out = fields(uv, z, nc, npp)
         out["surface"] = X
         return out

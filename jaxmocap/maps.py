@@ -82,9 +82,7 @@ def gather(maps: jnp.ndarray, index: jnp.ndarray, scale: float = 1.0, raw: bool 
     """``maps (V, H, W)`` at flat ``index`` → float values times ``scale`` (float32; float64 maps stay float64);
     ``(V, H, W, C)`` maps give ``(..., C)``; a flat map (:func:`with_sentinel`) gives ``(...)``; ``raw=True``
     returns the stored values unconverted. Indices must be in range (as :func:`nearest_index` makes them)."""
-    if maps.ndim == 1:
-        vals = maps.at[index].get(mode="promise_in_bounds")
-    elif maps.ndim == 3:
+    if maps.ndim in (1, 3):
         vals = maps.reshape(-1).at[index].get(mode="promise_in_bounds")
     else:
         vals = maps.reshape(-1, maps.shape[-1]).at[index].get(mode="promise_in_bounds")
