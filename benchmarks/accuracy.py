@@ -4,19 +4,19 @@ Scenario (all choices stated here):
 
 * clips: the bundled CMU walk (subject 2, trial 1) and, when ``../shared/data/mocap/cmu`` is present, the CMU
   Charleston dance; source frames ``--frames`` (default ``150:270`` at 120 fps → 30 frames at 30 fps), rendered by
-  :func:`jaxmocap.synth.synthesize` with the ``stereo`` preset at ``--size`` (default 320×240), photo background,
+  :func:`jaxmocap.synth.generate.synthesize` with the ``stereo`` preset at ``--size`` (default 320×240), photo background,
   sensor noise 0.01, virtual depth (noise 2 cm);
-* the tracker exactly as ``jaxmocap track`` runs it (:class:`jaxmocap.tracker.Tracker`: ground-truth masks as the
+* the tracker exactly as ``jaxmocap track`` runs it (:class:`jaxmocap.tracking.tracker.Tracker`: ground-truth masks as the
   foreground, initialisation from the ground truth of the first frame, damped constant-velocity prediction, track-loss
   handling), each configuration compiled once and run with ``--seeds`` seeds (frame ``t`` of seed ``s`` uses the key
   ``fold_in(key(s), t)``);
 * error of a run: thesis eq. 7.1, the mean over frames and evaluation joints of the Euclidean distance between the
-  model's joints at the estimate and the ground truth (mm) (:func:`jaxmocap.metrics.evaluate`); tables give the mean
+  model's joints at the estimate and the ground truth (mm) (:func:`jaxmocap.eval.metrics.evaluate`); tables give the mean
   ± std of that per-run error over seeds and clips, and the tracking time per frame (after compilation).
 
 Tables:
 
-(a) every filter of :data:`jaxmocap.tracker.FILTERS` on ``full25`` at an equal compute budget of ``--budget``
+(a) every filter of :data:`jaxmocap.tracking.tracker.FILTERS` on ``full25`` at an equal compute budget of ``--budget``
     likelihood evaluations per frame (default 600: 600 particles for SIR / ICONDENSATION; 200 × 3 layers for the
     annealed filters; ``600 / G`` per partition for partitioned sampling with ``G`` DOF groups; ``600 / (2 G)`` per
     level for the two-layer hierarchical filter);
@@ -50,7 +50,9 @@ import numpy as np
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 
-from jaxmocap import metrics, synth, tracker  # noqa: E402
+from jaxmocap import tracker  # noqa: E402
+from jaxmocap.eval import metrics
+from jaxmocap.synth import generate as synth
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results" / "accuracy.md"
@@ -73,7 +75,7 @@ def clips() -> list[tuple[str, str | pathlib.Path, pathlib.Path | None]]:
 
 
 class CachedTracker(tracker.Tracker):
-    """A :class:`~jaxmocap.tracker.Tracker` that keeps its compiled step and its per-frame observations across runs
+    """A :class:`~jaxmocap.tracking.tracker.Tracker` that keeps its compiled step and its per-frame observations across runs
     (the initial state comes from the ground truth, so every seed starts from the same ``x0``)."""
 
     def __init__(self, *args, **kwargs):

@@ -22,11 +22,11 @@ os.environ.setdefault("JAX_PLATFORMS", "cpu")
 
 import jax  # noqa: E402
 
-from jaxmocap.camera import Rig  # noqa: E402
 from jaxmocap.features.edges import distance_transform, masked_canny, smooth_edges  # noqa: E402
 from jaxmocap.features.foreground import GaussianBackground, StaticBackground  # noqa: E402
 from jaxmocap.features.pipeline import FeatureConfig, FeatureExtractor  # noqa: E402
 from jaxmocap.features.skin import default_skin_model  # noqa: E402
+from jaxmocap.geometry.camera import Rig  # noqa: E402
 
 DATA = pathlib.Path(__file__).resolve().parent.parent / "tests" / "data" / "features"
 W, H = 640, 480

@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from bench_likelihood import np_segment_poses
 
-from jaxmocap import body, camera, flesh, kinematics
+from jaxmocap.geometry import body, camera, flesh, kinematics
 
 
 def _stereo_rig():

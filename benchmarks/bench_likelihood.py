@@ -29,10 +29,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmocap import body, camera, cues, flesh
-from jaxmocap import likelihood as L
-from jaxmocap.observation import make_observation
-from jaxmocap.synth import look_at
+from jaxmocap.features.observation import make_observation
+from jaxmocap.geometry import body, camera, flesh
+from jaxmocap.likelihood import compose as L
+from jaxmocap.likelihood import cues
+from jaxmocap.synth.generate import look_at
 
 W, H = 640, 480
 F = np.float32
@@ -102,7 +103,7 @@ def _axis_angle(a, th, dtype=F):
 
 
 def np_segment_poses(model, X, dtype=F):
-    """FK (product of exponentials, :func:`jaxmocap.kinematics.segment_poses`) for ``X (N, D)`` in ``dtype``
+    """FK (product of exponentials, :func:`jaxmocap.geometry.kinematics.segment_poses`) for ``X (N, D)`` in ``dtype``
     (also the NumPy baseline of ``bench_kinematics.py``)."""
     top = model.topology
     rest, off, axis = (np.asarray(a, dtype) for a in (model.rest_rotation, model.offset, model.dof_axis))
@@ -219,7 +220,7 @@ def np_contours(model, Rw, tw, centres, k):
 
 
 class NumpyLikelihood:
-    """The composed log-likelihood of :class:`jaxmocap.likelihood.Likelihood` (schedule 1, weights 1, default cue
+    """The composed log-likelihood of :class:`jaxmocap.likelihood.compose.Likelihood` (schedule 1, weights 1, default cue
     parameters) for the cues of this benchmark, in NumPy."""
 
     def __init__(self, lik: L.Likelihood, obs):

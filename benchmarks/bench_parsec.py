@@ -1,4 +1,4 @@
-"""Speed of PARSEC bodytrack's likelihood: JAX (``jaxmocap.parsec_likelihood``) against a NumPy baseline.
+"""Speed of PARSEC bodytrack's likelihood: JAX (``jaxmocap.parsec.likelihood``) against a NumPy baseline.
 
 Reports µs per particle per layer (one likelihood evaluation of every particle) for ``--particles`` states drawn
 around sequenceB_2's initial pose with PoseParameters' standard deviations, 4 cameras, frame 0: the median and
@@ -46,7 +46,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 from jaxmocap import parsec  # noqa: E402
-from jaxmocap import parsec_likelihood as pl  # noqa: E402
+from jaxmocap.parsec import likelihood as pl  # noqa: E402
 
 # ---------------------------------------------------------------------------------------------------------------
 # NumPy baseline: bodytrack's likelihood written with batched 3×3 matrices, vectorised over particles

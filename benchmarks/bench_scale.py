@@ -1,15 +1,15 @@
-"""Scaling benchmarks of :mod:`jaxmocap.scale`: throughput vs device count, peak memory vs particles.
+"""Scaling benchmarks of :mod:`jaxmocap.filters.sharding`: throughput vs device count, peak memory vs particles.
 
 Scene: the bundled CMU walk synthesised for a stereo rig at 96×72 (``--frames``), the ``upper9`` model and the
-tracker's likelihood (``foreground`` + ``coverage``, :mod:`jaxmocap.tracker`). Every measurement runs in its own
+tracker's likelihood (``foreground`` + ``coverage``, :mod:`jaxmocap.tracking.tracker`). Every measurement runs in its own
 subprocess, since ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` must be set before ``jax`` is imported:
 
 1. **sharded particles**: the APF step (``--layers`` layers) with ``--particles`` particles split over ``N``
-   forced host devices (:func:`jaxmocap.scale.sharded_step`), median seconds per frame after compilation;
+   forced host devices (:func:`jaxmocap.filters.sharding.sharded_step`), median seconds per frame after compilation;
 2. **batched seeds**: ``--seeds`` seeds of the same APF over all frames in one call
-   (:func:`jaxmocap.scale.batched_run`), the seeds spread over the ``N`` devices; run-frames per second;
+   (:func:`jaxmocap.filters.sharding.batched_run`), the seeds spread over the ``N`` devices; run-frames per second;
 3. **memory vs particles**: the likelihood on ``N`` particles whole and in chunks of ``--chunk``
-   (:func:`jaxmocap.scale.chunked`): XLA's buffer assignment of the compiled call (``memory_analysis``:
+   (:func:`jaxmocap.filters.sharding.chunked`): XLA's buffer assignment of the compiled call (``memory_analysis``:
    temporaries + arguments + outputs, exact and without running it), and, for the sizes in ``--run-sizes``, the
    peak resident memory (``ru_maxrss``) of a process that evaluates it once, against the same process before the
    evaluation.
@@ -41,7 +41,8 @@ def _child(args) -> dict:
     import jax.numpy as jnp
     import numpy as np
 
-    from jaxmocap import scale, sweep, tracker
+    from jaxmocap.filters import sharding as scale
+    from jaxmocap.tracking import sweep, tracker
 
     spec = sweep.make_spec(
         sequences=[args.seq], filters=["apf"], model="upper9", cues="foreground,coverage", layers=args.layers
@@ -148,7 +149,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         seq = args.seq
         if seq is None:
-            from jaxmocap import synth
+            from jaxmocap.synth import generate as synth
 
             seq = os.path.join(tmp, "seq")
             synth.synthesize("demo", seq, rig="stereo", frames=args.frames, fps=60.0, size="96x72", seed=0)

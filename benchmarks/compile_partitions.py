@@ -5,7 +5,7 @@ count, the case where this benchmark measured a shorter compile.
 
 Scene: the bundled CMU walk (frames ``150:156``) synthesised for the stereo preset at 160×120, ``full25`` with Li &
 Kulić's cues (foreground, coverage, edge fraction, depth), ground-truth masks, initialised from the ground truth —
-the tracker exactly as ``jaxmocap track`` runs it (:class:`jaxmocap.tracker.Tracker`). For each configuration both
+the tracker exactly as ``jaxmocap track`` runs it (:class:`jaxmocap.tracking.tracker.Tracker`). For each configuration both
 variants are built in one process; "first step" is the wall time of the first call of the jitted step (tracing,
 XLA compilation and one run); the step time is the median over the later frames of ``--repeats`` runs of the
 sequence, the two variants' runs interleaved.
@@ -24,7 +24,7 @@ import time
 import accuracy
 import numpy as np
 
-from jaxmocap import tracker
+from jaxmocap.tracking import tracker
 
 RESULTS = pathlib.Path(__file__).resolve().parent / "results" / "compile_partitions.md"
 CUES = ("foreground", "coverage:4", "edge_fraction", "depth")

@@ -1,9 +1,9 @@
 """Cue energy landscapes on a synthetic stereo sequence from real motion capture (IROS 2007 Fig. 1, thesis Fig. 4.3).
 
-A short stereo sequence of the bundled CMU walk (subject 2, trial 1) is rendered with :func:`jaxmocap.synth.synthesize`
+A short stereo sequence of the bundled CMU walk (subject 2, trial 1) is rendered with :func:`jaxmocap.synth.generate.synthesize`
 (the mocap skeleton dressed in cones, photo background, sensor noise, virtual depth). The tracker's ``full25`` body
 (the ``body.toml`` written with the sequence) is fitted to the ground-truth joints of each frame used
-(:func:`jaxmocap.ik.fit_pose`); that fitted state is the "truth" of the sweeps — the scene is the dressed skeleton,
+(:func:`jaxmocap.fit.ik.fit_pose`); that fitted state is the "truth" of the sweeps — the scene is the dressed skeleton,
 not the tracker's model, so a cue's minimum is displaced by the model mismatch as well. The observation is made
 from the rendered images by :class:`jaxmocap.features.pipeline.FeatureExtractor` (static background, edges, skin,
 colour, 3D skin blobs) plus the virtual depth maps; colour references (histograms, templates) come from the first
@@ -27,9 +27,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmocap import body, ik, synth
-from jaxmocap import likelihood as L
 from jaxmocap.features.pipeline import FeatureConfig, FeatureExtractor
+from jaxmocap.fit import ik
+from jaxmocap.geometry import body
+from jaxmocap.likelihood import compose as L
+from jaxmocap.synth import generate as synth
 
 RESULTS = pathlib.Path(__file__).resolve().parent / "results"
 

@@ -1,8 +1,8 @@
 """Frames per second end to end (image features + filtering) in the configurations of the three works.
 
 A 640×480 two-view sequence of the bundled CMU walk (subject 2, trial 1, source frames ``150:…`` at 30 fps, the
-``stereo`` preset, photo background, noise 0.01, virtual depth) is rendered by :func:`jaxmocap.synth.synthesize`
-and tracked by :class:`jaxmocap.tracker.Tracker` exactly as ``jaxmocap track`` does (foreground by static
+``stereo`` preset, photo background, noise 0.01, virtual depth) is rendered by :func:`jaxmocap.synth.generate.synthesize`
+and tracked by :class:`jaxmocap.tracking.tracker.Tracker` exactly as ``jaxmocap track`` does (foreground by static
 background subtraction against the median of the sequence, edges / distance transform, silhouette samples; one
 compiled filter step per frame; poses and diagnostics written), initialised from the ground truth:
 
@@ -21,7 +21,7 @@ Reported: frames/s after the first frame of the plain tracker (its own ``frames_
 including reading the PNGs, features, the step, writing poses; the tracker prepares frame ``t + 1`` on the host
 while the compiled step of frame ``t`` runs), the same for a profiled run that waits for each step (features and
 step serialised: a lower bound), and that run's profile split per frame: feature preprocessing (reading +
-:class:`~jaxmocap.tracker.FeatureBuilder`), the compiled filter step, and within the step the likelihood (the
+:class:`~jaxmocap.tracking.tracker.FeatureBuilder`), the compiled filter step, and within the step the likelihood (the
 compiled likelihood timed alone on batches of the step's sizes) vs the rest (resampling, diffusion, β search,
 estimates).
 CPU ms/frame: process CPU time (all threads) of features + step, median over frames: on a shared machine the
@@ -47,7 +47,8 @@ os.environ.setdefault("JAX_PLATFORMS", "cpu")
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
-from jaxmocap import synth, tracker  # noqa: E402
+from jaxmocap import tracker  # noqa: E402
+from jaxmocap.synth import generate as synth
 
 #: (label, model, filter, particles per layer / partition, layers, cues, likelihood evaluations per frame, target)
 CONFIGS = (
@@ -69,7 +70,7 @@ VARIANTS = (("IROS 2007, features at 320×240", 2),)
 
 
 class ProfiledTracker(tracker.Tracker):
-    """A :class:`~jaxmocap.tracker.Tracker` that times its feature preprocessing and its compiled step."""
+    """A :class:`~jaxmocap.tracking.tracker.Tracker` that times its feature preprocessing and its compiled step."""
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)

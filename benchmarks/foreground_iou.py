@@ -17,8 +17,8 @@ import tempfile
 
 import numpy as np
 
-from jaxmocap import synth
 from jaxmocap.features import foreground as fg
+from jaxmocap.synth import generate as synth
 
 SETTINGS = (
     ("clutter medium", dict(clutter="medium", illumination=0.0)),

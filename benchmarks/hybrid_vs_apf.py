@@ -4,7 +4,7 @@ mean joint error against the number of likelihood evaluations per frame.
 Scenario (all choices stated here):
 
 * the bundled CMU clip (subject 2, trial 1, a walk), frames ``150:270`` at 30 fps (30 frames, 1 s), rendered by
-  :func:`jaxmocap.synth.synthesize` with the ``ring4`` rig (four cameras around the subject, HumanEva-like) at
+  :func:`jaxmocap.synth.generate.synthesize` with the ``ring4`` rig (four cameras around the subject, HumanEva-like) at
   320×240, photo backgrounds, sensor noise 0.01 (with the thesis' two-camera ``frontal-lateral`` rig, the APF lost
   the wrists and legs at every particle count tried, 50 to 200 per layer: errors ≈ 95 mm, which says little about
   search efficiency);
@@ -14,7 +14,7 @@ Scenario (all choices stated here):
   ``full25`` model with the subject's dimensions (the sequence's ``body.toml``), 400 surface points, particles
   evaluated in one ``vmap`` (``chunk_size=0``);
 * motion model (a random walk): Δ = the root-mean-square frame-to-frame change of each state entry, measured on the IK
-  fit of the clip's ground truth (:func:`jaxmocap.ik.fit_sequence`), floored at 0.5 cm / 0.01 rad; both filters
+  fit of the clip's ground truth (:func:`jaxmocap.fit.ik.fit_sequence`), floored at 0.5 cm / 0.01 rad; both filters
   start from the IK state of frame 0;
 * APF: Deutscher's survival-rate rule (α = 0.5), ``L`` layers with diffusion scales ``0.6^l``; ``N`` particles per
   layer swept;
@@ -46,15 +46,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmocap import body, ik, synth
-from jaxmocap import likelihood as L
-from jaxmocap.annealing import Schedule
 from jaxmocap.features.pipeline import FeatureConfig, FeatureExtractor
 from jaxmocap.filters import base
+from jaxmocap.filters.annealing import Schedule
 from jaxmocap.filters.apf import APF
 from jaxmocap.filters.hybrid import GradientMove, HybridAPF
-from jaxmocap.gradients import batch_value_and_grad
+from jaxmocap.fit import ik
+from jaxmocap.geometry import body
 from jaxmocap.io import sequence as seqio
+from jaxmocap.likelihood import compose as L
+from jaxmocap.likelihood.gradients import batch_value_and_grad
+from jaxmocap.synth import generate as synth
 
 RESULTS = pathlib.Path(__file__).parent / "results"
 KEY_IMPL = "rbg"

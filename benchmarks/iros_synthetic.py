@@ -37,8 +37,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmocap.annealing import Schedule
 from jaxmocap.filters import base
+from jaxmocap.filters.annealing import Schedule
 from jaxmocap.filters.apf import APF, ignore_layer
 from jaxmocap.filters.icondensation import ICondensation
 from jaxmocap.filters.sir import SIR

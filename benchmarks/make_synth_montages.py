@@ -21,10 +21,11 @@ import cv2
 import numpy as np
 from PIL import Image
 
-from jaxmocap import camera, synth
-from jaxmocap.body import EVAL_JOINTS
+from jaxmocap.eval.viz import SKELETON
+from jaxmocap.geometry import camera
+from jaxmocap.geometry.body import EVAL_JOINTS
 from jaxmocap.io import sequence as seqio
-from jaxmocap.viz import SKELETON
+from jaxmocap.synth import generate as synth
 
 RESULTS = pathlib.Path(__file__).parent / "results"
 PANEL = (256, 192)

@@ -30,10 +30,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmocap import body as body_mod
-from jaxmocap import camera, parsec, viz
-from jaxmocap import parsec_track as ptrack
+from jaxmocap.eval import viz
 from jaxmocap.filters import APF
+from jaxmocap.geometry import body as body_mod
+from jaxmocap.geometry import camera
+from jaxmocap.parsec import model as parsec
+from jaxmocap.parsec import track as ptrack
 
 DATA = pathlib.Path(os.environ.get("JAXMOCAP_DATA", "/work/shared/data")) / "parsec"
 RESULTS = pathlib.Path(__file__).resolve().parent / "results"
@@ -85,8 +87,8 @@ def save_overlay(seq, obs, path: pathlib.Path, frame: int = 1, seed: int = 0) ->
     """Track frames ``0 … frame`` (1000 × 3, ``seed``) and write the 2×2 montage of ``frame`` to ``path``.
 
     Everything is in PARSEC's millimetres: the estimate (pelvis translation in mm) on ``parsec31(seq.shape)`` (mm),
-    projected through the ``.cal`` cameras loaded in mm (:func:`jaxmocap.camera.load_parsec_calibration`), the
-    same projection as bodytrack's ``ProjectPoints`` (:func:`jaxmocap.parsec.project`, checked here on the joints).
+    projected through the ``.cal`` cameras loaded in mm (:func:`jaxmocap.geometry.camera.load_parsec_calibration`), the
+    same projection as bodytrack's ``ProjectPoints`` (:func:`jaxmocap.parsec.model.project`, checked here on the joints).
     Returns the mean distance (mm) over the 15 joints between the estimate and bodytrack's pose of ``frame``.
     """
     N, L = 1000, 3

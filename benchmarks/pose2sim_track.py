@@ -4,7 +4,7 @@ Pose2Sim's triangulated ``.trc`` reference.
 Pipeline: videos + Pose2Sim calibration (:class:`jaxmocap.io.pose2sim.Pose2SimSource`, images resized by
 ``--scale``), subject dimensions from the triangulated OpenPose BODY_25B detections
 (:func:`jaxmocap.io.pose2sim.body_dimensions`), IK initialisation from the triangulated detections, then the APF of
-:class:`jaxmocap.tracker.Tracker` with the cues ``foreground`` (static background: per-pixel median of frames with
+:class:`jaxmocap.tracking.tracker.Tracker` with the cues ``foreground`` (static background: per-pixel median of frames with
 the subject's box left out, filled from the scene image of ``calibration/extrinsics``), ``edge_distance``,
 ``coverage`` and ``keypoints`` (detections of every view).
 
@@ -30,10 +30,10 @@ import cv2
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmocap import camera
-from jaxmocap.body import EVAL_JOINTS
+from jaxmocap.geometry import camera
+from jaxmocap.geometry.body import EVAL_JOINTS
 from jaxmocap.io.pose2sim import KEYPOINT_OF_TRC, Pose2SimSource, body_dimensions, reference_joints
-from jaxmocap.tracker import KEYPOINT_OF, Tracker, TrackOptions
+from jaxmocap.tracking.tracker import KEYPOINT_OF, Tracker, TrackOptions
 
 DATA = pathlib.Path(os.environ.get("JAXMOCAP_DATA", "/work/shared/data")) / "video" / "pose2sim_demo"
 DERIVED = "derived_by_pose2sim_a948c20"
@@ -185,7 +185,7 @@ def track(
 
 def save_overlay(res: dict, path: pathlib.Path) -> None:
     """The tracked model (and the detections, white dots) on the middle tracked frame of every camera."""
-    from jaxmocap import viz
+    from jaxmocap.eval import viz
 
     images, rig, kps, x = res["_shown"]
     ims = viz.overlay_image(images, res["_model"], rig, x)

@@ -2,12 +2,12 @@
 
 Setup (a cheap, self-contained version of the tracker's hot path): the ``full25`` model with default dimensions
 standing at the origin; ``V`` cameras on a 3.5 m circle around it looking at its centre (focal 0.8 × width);
-an observation of random smooth foreground and edge-distance maps (``jaxmocap.observation.make_observation``);
+an observation of random smooth foreground and edge-distance maps (``jaxmocap.features.observation.make_observation``);
 the tracker's default image cues ``foreground`` + ``edge_distance`` (600 surface points, 8 contour points per cone);
 particles = the rest pose + N(0, 0.05²) noise. Every point is the median of ``repeats`` calls after compilation:
 
-* particles N (2 views, 320×240): :meth:`jaxmocap.likelihood.Likelihood.batch` of N particles;
-* layers L (N = 200, 2 views, 320×240): one compiled APF step (:func:`jaxmocap.tracker.make_filter`, Deutscher's
+* particles N (2 views, 320×240): :meth:`jaxmocap.likelihood.compose.Likelihood.batch` of N particles;
+* layers L (N = 200, 2 views, 320×240): one compiled APF step (:func:`jaxmocap.tracking.tracker.make_filter`, Deutscher's
   survival-rate rule) with L layers: L likelihood batches + resampling + diffusion;
 * views V ∈ {1, 2, 4} (N = 1000, 320×240) and image size (N = 1000, 2 views).
 
@@ -35,9 +35,10 @@ import cv2  # noqa: E402
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
-from jaxmocap import body, camera, tracker  # noqa: E402
-from jaxmocap import likelihood as lk  # noqa: E402
-from jaxmocap.observation import make_observation  # noqa: E402
+from jaxmocap import tracker  # noqa: E402
+from jaxmocap.features.observation import make_observation  # noqa: E402
+from jaxmocap.geometry import body, camera
+from jaxmocap.likelihood import compose as lk  # noqa: E402
 
 RESULTS = pathlib.Path(__file__).resolve().parent / "results"
 

@@ -6,9 +6,9 @@ Subcommands:
   YAML/XML, Pose2Sim/OpenCV TOML, caliscope TOML, Qualisys ``.qca.txt``, a PARSEC ``CALIB`` folder).
 * ``jaxmocap calib convert IN OUT.toml`` — write it as the canonical Pose2Sim-layout TOML.
 * ``jaxmocap synth --motion CLIP --rig {stereo,frontal-lateral,ring4,FILE} --out DIR [...]`` — render a synthetic
-  multi-view sequence of a mocap clip with exact ground truth (:func:`jaxmocap.synth.synthesize`).
+  multi-view sequence of a mocap clip with exact ground truth (:func:`jaxmocap.synth.generate.synthesize`).
 * ``jaxmocap sweep SEQ ... --filters F,G --seeds A:B --out results.csv`` — sequences × filters × seeds, the
-  seeds in one compiled call spread over the available devices, into one table (:mod:`jaxmocap.sweep`).
+  seeds in one compiled call spread over the available devices, into one table (:mod:`jaxmocap.tracking.sweep`).
 
 Bad input prints one line naming the file (and line) and exits with status 2, never a traceback.
 """
@@ -26,7 +26,7 @@ from jaxmocap.errors import MocapInputError
 
 
 def _calib_show(args) -> int:
-    from jaxmocap import camera
+    from jaxmocap.geometry import camera
 
     rig = camera.load_calibration(args.file)
     centres = np.asarray(camera.camera_centres(rig.to_jax()))
@@ -43,7 +43,7 @@ def _calib_show(args) -> int:
 
 
 def _calib_convert(args) -> int:
-    from jaxmocap import camera
+    from jaxmocap.geometry import camera
 
     rig = camera.load_calibration(args.input)
     camera.save_calibration(args.output, rig)
@@ -52,7 +52,7 @@ def _calib_convert(args) -> int:
 
 
 def _synth(args) -> int:
-    from jaxmocap import synth
+    from jaxmocap.synth import generate as synth
 
     def progress(done, total):
         if not args.quiet and (done == total or done % 10 == 0):
@@ -110,7 +110,7 @@ def _cues_text(cues) -> str:
 
 
 def _print_summary(summary: dict, out) -> None:
-    from jaxmocap import tracker
+    from jaxmocap.tracking import tracker
 
     s = summary
     fps = s.get("frames_per_s")
@@ -132,7 +132,7 @@ def _print_summary(summary: dict, out) -> None:
 
 
 def _track_options(args):
-    from jaxmocap import tracker
+    from jaxmocap.tracking import tracker
 
     return tracker.TrackOptions(
         model=args.model,
@@ -154,7 +154,7 @@ def _track_options(args):
 
 
 def _open_source(args):
-    from jaxmocap import tracker
+    from jaxmocap.tracking import tracker
 
     if (args.input is None) == (args.videos is None):
         raise ValueError("give either a sequence folder (INPUT) or --videos V1 V2 ... with --calibration")
@@ -166,7 +166,7 @@ def _open_source(args):
         raise ValueError(
             "--calibration, --keypoints and --depth go with --videos (a sequence folder has its own)"
         )
-    from jaxmocap.io import parsec_sequence
+    from jaxmocap.parsec import inputs as parsec_sequence
 
     if parsec_sequence.is_parsec_folder(args.input):  # a PARSEC bodytrack sequence (CALIB/, CAM<k>/, FG<k>/)
         return parsec_sequence.ParsecSource(args.input)
@@ -175,11 +175,11 @@ def _open_source(args):
 
 def _make_run(source, args, options):
     """The tracking run for ``source``: bodytrack's configuration for a PARSEC sequence, else the Tracker."""
-    from jaxmocap import tracker
-    from jaxmocap.io.parsec_sequence import ParsecSource
+    from jaxmocap.parsec.inputs import ParsecSource
+    from jaxmocap.tracking import tracker
 
     if isinstance(source, ParsecSource):
-        from jaxmocap.parsec_track import ParsecTracker
+        from jaxmocap.parsec.track import ParsecTracker
 
         return ParsecTracker(source, args.out, options, quiet=args.quiet)
     return tracker.Tracker(source, args.out, options, quiet=args.quiet)
@@ -221,7 +221,7 @@ def _track(args) -> int:
 
 def evaluate_runs(pred: list, gt: str, out: str | None = None, quiet: bool = False):
     """Evaluate tracking output folders against a sequence's ground truth; write JSON and plots when ``out``."""
-    from jaxmocap import metrics, viz
+    from jaxmocap.eval import metrics, viz
 
     gt_frames, gt_joints = metrics.load_groundtruth(gt)
     runs = [metrics.load_prediction(p) for p in pred]
@@ -240,7 +240,7 @@ def evaluate_runs(pred: list, gt: str, out: str | None = None, quiet: bool = Fal
 
 
 def _eval(args) -> int:
-    from jaxmocap import metrics
+    from jaxmocap.eval import metrics
 
     report = evaluate_runs([args.pred, *(args.runs or [])], args.gt, args.out)
     print(
@@ -263,7 +263,9 @@ def _demo(args) -> int:
 
     import cv2
 
-    from jaxmocap import metrics, synth, tracker, viz
+    from jaxmocap.eval import metrics, viz
+    from jaxmocap.synth import generate as synth
+    from jaxmocap.tracking import tracker
 
     _silence_opencv()
     t0 = time.monotonic()
@@ -333,7 +335,7 @@ def _demo(args) -> int:
 
 
 def _sweep(args) -> int:
-    from jaxmocap import sweep
+    from jaxmocap.tracking import sweep
 
     _silence_opencv()
     if args.distributed or args.coordinator is not None:
@@ -411,7 +413,7 @@ def _add_sweep_command(sub) -> None:
     sw.set_defaults(func=_sweep)
 
 
-# the choices of jaxmocap.tracker (MODELS, FILTERS, FOREGROUNDS), repeated so that building the parser does not
+# the choices of jaxmocap.tracking.tracker (MODELS, FILTERS, FOREGROUNDS), repeated so that building the parser does not
 # import JAX; tests/test_cli_track.py checks that they agree
 _MODELS = ("upper9", "upper14", "full25", "parsec31")
 _FILTERS = (

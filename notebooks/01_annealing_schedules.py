@@ -8,7 +8,7 @@
 # # Annealing schedules
 #
 # The annealed particle filter weighs layer ``l`` by ``p(z | x)^β_l``. How β grows over the layers is the schedule
-# (:class:`jaxmocap.annealing.Schedule`):
+# (:class:`jaxmocap.filters.annealing.Schedule`):
 #
 # * **fixed** sequences, e.g. IROS 2007 Table II: β = (0.1, 0.4, 1) with diffusion std multipliers (1, 1/2, 1/5);
 # * **survival-rate targets** (Deutscher): each β_l solves ``α(β_l) = α_target``, with the survival rate
@@ -16,7 +16,7 @@
 # * the thesis' **correction rule** (López Méndez 2009, eq. 6.4): ``β_l = β_{l−1} − ε_l (α_target − α_{l−1})``,
 #   ``ε_l = 1/(1 + l)``: one cheap correction per layer instead of a root search;
 # * **feature-based** schedules: the cue weights ``λ_c(l)`` change over the layers too
-#   (:func:`jaxmocap.likelihood.schedule_preset`: coarse cues first, fine cues later).
+#   (:func:`jaxmocap.likelihood.compose.schedule_preset`: coarse cues first, fine cues later).
 #
 # On a short synthetic sequence (a ``full25`` subject rendered from its own model, :mod:`scene`) we run one APF
 # frame layer by layer and plot the particle clouds of each layer on two joint angles.
@@ -31,11 +31,11 @@ import matplotlib.pyplot as plt
 import numpy as np
 import scene
 
-from jaxmocap import annealing, body
-from jaxmocap import likelihood as L
-from jaxmocap.annealing import Schedule
-from jaxmocap.filters import base
+from jaxmocap.filters import annealing, base
+from jaxmocap.filters.annealing import Schedule
 from jaxmocap.filters.apf import APF
+from jaxmocap.geometry import body
+from jaxmocap.likelihood import compose as L
 
 OUT = scene.output_dir("01_annealing_schedules")
 N = 60 if scene.SMALL else 200

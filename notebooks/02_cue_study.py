@@ -13,7 +13,7 @@
 #
 # Then the thesis' mode-counting test (§5.2.1): draw particles uniformly over the same two angles, resample them in
 # proportion to each cue's likelihood, and fit Gaussian mixtures with the number of components chosen by BIC
-# (:func:`jaxmocap.gmm.count_modes`). Fewer modes: a less ambiguous cue.
+# (:func:`jaxmocap.eval.mixtures.count_modes`). Fewer modes: a less ambiguous cue.
 
 # %%
 import matplotlib
@@ -25,8 +25,10 @@ import matplotlib.pyplot as plt
 import numpy as np
 import scene
 
-from jaxmocap import annealing, body, gmm, resampling
-from jaxmocap import likelihood as L
+from jaxmocap.eval import mixtures as gmm
+from jaxmocap.filters import annealing, resampling
+from jaxmocap.geometry import body
+from jaxmocap.likelihood import compose as L
 
 OUT = scene.output_dir("02_cue_study")
 GRID = 21 if scene.SMALL else 41
@@ -38,7 +40,7 @@ i, j = (model.dof_index(n) for n in scene.SWEEP)
 
 # %% [markdown]
 # ## Sweeps
-# Each cue alone in a :class:`jaxmocap.likelihood.Likelihood`; the grid spans ±1.2 rad around the true angles.
+# Each cue alone in a :class:`jaxmocap.likelihood.compose.Likelihood`; the grid spans ±1.2 rad around the true angles.
 
 # %%
 CUES = {

@@ -7,8 +7,8 @@
 # %% [markdown]
 # # Gradients of the likelihood, and the hybrid filter against the plain APF
 #
-# With bilinear map lookups (``params={"bilinear": True}``, see :data:`jaxmocap.cues.DIFFERENTIABLE`) the image cues
-# are differentiable in the pose, and :func:`jaxmocap.gradients.batch_value_and_grad` gives every particle's
+# With bilinear map lookups (``params={"bilinear": True}``, see :data:`jaxmocap.likelihood.cues.DIFFERENTIABLE`) the image cues
+# are differentiable in the pose, and :func:`jaxmocap.likelihood.gradients.batch_value_and_grad` gives every particle's
 # ``∂ℓ/∂x`` in one reverse pass. We plot the gradient field over two joint angles of the left arm, then track a
 # short synthetic sequence with the APF and with the hybrid APF (:class:`jaxmocap.filters.hybrid.HybridAPF`:
 # normalised gradient steps on the best particles of each layer) at the same particle count.
@@ -24,12 +24,12 @@ import matplotlib.pyplot as plt
 import numpy as np
 import scene
 
-from jaxmocap import body
-from jaxmocap import likelihood as L
-from jaxmocap.annealing import Schedule
+from jaxmocap.filters.annealing import Schedule
 from jaxmocap.filters.apf import APF
 from jaxmocap.filters.hybrid import GradientMove, HybridAPF
-from jaxmocap.gradients import batch_value_and_grad
+from jaxmocap.geometry import body
+from jaxmocap.likelihood import compose as L
+from jaxmocap.likelihood.gradients import batch_value_and_grad
 
 OUT = scene.output_dir("03_gradients")
 GRID = 11 if scene.SMALL else 21

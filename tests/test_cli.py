@@ -6,7 +6,8 @@ import sys
 import cv2
 import numpy as np
 
-from jaxmocap import camera, cli
+from jaxmocap import cli
+from jaxmocap.geometry import camera
 
 
 def test_calib_convert_round_trip(tmp_path, data_dir):

@@ -1,4 +1,4 @@
-"""Host-side image features with OpenCV → ``jaxmocap.observation.Observation``.
+"""Host-side image features with OpenCV → ``jaxmocap.features.observation.Observation``.
 
 Modules: ``foreground`` (static background, adaptive Gaussian, MOG2, depth; shadow removal), ``edges`` (Canny,
 smoothed edge map, distance transform I_DT), ``skin`` (RGB likelihood ratio, HS back-projection; default model),

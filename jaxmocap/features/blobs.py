@@ -5,7 +5,7 @@ For the head and hands cue (Fontmarty et al., IROS 2007; Li & Kulić): the large
 ``x₂ᵀ F x₁ ≈ 0`` with the fundamental matrix of the rig (``fundamental_matrix``), then triangulated
 (``triangulate_pair``) into 3D points with confidences (``stereo_blobs``).
 
-Camera conventions follow ``jaxmocap.camera.Rig``: ``x_cam = R x_world + t``, pixel ``u`` = column, ``v`` = row,
+Camera conventions follow ``jaxmocap.geometry.camera.Rig``: ``x_cam = R x_world + t``, pixel ``u`` = column, ``v`` = row,
 OpenCV distortion ``[k1, k2, p1, p2, k3]``. Centroids are undistorted before the epipolar test and triangulation.
 """
 

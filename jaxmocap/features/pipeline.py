@@ -4,7 +4,7 @@
 size ``rig.image_size[v]``): optional down-sampling, foreground segmentation, Canny edges masked by the dilated
 foreground → smoothed edge map and distance transform I_DT, skin probability, RGB map; then, across the stereo
 pair, skin blobs → matched and triangulated 3D blobs, and SGBM depth in the left view. Fields that the
-configuration does not compute follow the empty-field convention of ``jaxmocap.observation``, so the shapes of
+configuration does not compute follow the empty-field convention of ``jaxmocap.features.observation``, so the shapes of
 the returned ``Observation`` depend only on the configuration and the rig.
 """
 
@@ -25,10 +25,10 @@ from jaxmocap.features.foreground import (
     ShadowParams,
     StaticBackground,
 )
+from jaxmocap.features.observation import Observation, make_observation
 from jaxmocap.features.resample import downsample, scale_rig
 from jaxmocap.features.skin import SkinModel, default_skin_model
 from jaxmocap.features.stereo import StereoDepth
-from jaxmocap.observation import Observation, make_observation
 
 FOREGROUND_METHODS = ("static", "gaussian", "mog2", "depth", "none")
 SKIN_METHODS = ("rgb", "hs", None)

@@ -1,7 +1,7 @@
 """Down-sampling of frames by 2 or 4 and the matching rescaled calibration.
 
 Frames are resized with ``cv2.resize(img, None, fx=1/f, fy=1/f, interpolation=INTER_AREA)`` (area averaging),
-which maps pixel centres as ``u' = (u + ½)/f − ½``; ``jaxmocap.camera.scale_images(rig, 1/f)`` applies the same
+which maps pixel centres as ``u' = (u + ½)/f − ½``; ``jaxmocap.geometry.camera.scale_images(rig, 1/f)`` applies the same
 mapping to the intrinsics (``f_x' = f_x / f``, ``c_x' = (c_x + ½)/f − ½``) and gives the same image sizes
 (``round(w / f)``). Distortion coefficients act on normalised coordinates and are unchanged.
 """
@@ -11,8 +11,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from jaxmocap.camera import scale_images
 from jaxmocap.errors import MocapInputError
+from jaxmocap.geometry.camera import scale_images
 
 FACTORS = (1, 2, 4)
 

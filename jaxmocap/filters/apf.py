@@ -7,7 +7,7 @@ Per frame, ``L`` layers ``l = 0 … L-1`` (0 runs first: broadest diffusion, sma
    model); in the IAPF it instead draws from the ICONDENSATION mixture (dynamics with ``Δ · s_0``, detector-driven
    Gaussian, prior) and keeps the importance correction ``f/q`` (see :mod:`jaxmocap.filters.icondensation`);
    layers ``l ≥ 1`` resample the previous layer's weighted set and diffuse with ``Δ · s_l``; then the joint limits;
-2. weigh: ``ll = loglik_batch(X, observation, layer)``, β_l from the schedule (:class:`jaxmocap.annealing.Schedule`:
+2. weigh: ``ll = loglik_batch(X, observation, layer)``, β_l from the schedule (:class:`jaxmocap.filters.annealing.Schedule`:
    fixed, Deutscher's survival-rate rule, the thesis correction, or PARSEC's bisection; an adaptive β is chosen on
    ``ll`` alone), ``log w_i = β_l ll_i (+ log f/q in the IAPF's first layer)``, normalised;
 3. after the last layer: estimate = weighted mean of the final weighted set (circular for flagged entries), best
@@ -37,9 +37,8 @@ from collections.abc import Callable
 import jax
 import jax.numpy as jnp
 
-from jaxmocap import annealing
-from jaxmocap.annealing import Schedule
-from jaxmocap.filters import base, icondensation
+from jaxmocap.filters import annealing, base, icondensation
+from jaxmocap.filters.annealing import Schedule
 from jaxmocap.filters.base import Info, Layer, State
 
 __all__ = ["APF", "Info", "Layer", "State", "ignore_layer"]
@@ -64,7 +63,7 @@ class APF:
     Arrays (traced): ``diffusion_std (D,)`` (Δ), ``lower, upper``; for the IAPF also ``prior_mean``, ``prior_std``
     and ``detection_std`` (None → Δ · s_0).
     Static: ``loglik_batch(X, observation, layer)``, ``num_particles`` (per layer), ``schedule``
-    (:class:`jaxmocap.annealing.Schedule`), ``first_layer`` (``"dynamics"`` or ``"icondensation"``), the
+    (:class:`jaxmocap.filters.annealing.Schedule`), ``first_layer`` (``"dynamics"`` or ``"icondensation"``), the
     ICONDENSATION options (``dynamics_fraction``, ``detection_fraction``, ``proposal_center``, ``weighting``),
     ``resampling``, ``limit_mode``, ``circular``, ``recovery``, ``recovery_widen``.
     """

@@ -22,7 +22,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxmocap import annealing, resampling
+from jaxmocap.filters import annealing, resampling
 
 __all__ = [
     "LIMIT_MODES",

@@ -2,7 +2,7 @@
 refined by gradient ascent.
 
 The APF (:mod:`jaxmocap.filters.apf`) explores by diffusion alone; a differentiable likelihood
-(:mod:`jaxmocap.gradients`) also tells each particle which way is uphill. :class:`HybridAPF` runs the APF's layers
+(:mod:`jaxmocap.likelihood.gradients`) also tells each particle which way is uphill. :class:`HybridAPF` runs the APF's layers
 ``l = 0 … L-1`` (layer 0 resamples the previous frame's weighted set) with one more stage:
 
 1. resample the weighted set ``{x_i, w_i}`` of the previous layer (or frame);
@@ -10,7 +10,7 @@ The APF (:mod:`jaxmocap.filters.apf`) explores by diffusion alone; a differentia
    log-likelihood ``ℓ_l`` — on every resampled particle, or on the ``k`` distinct particles of largest weight
    (``best_k``; their copies follow them, so a particle drawn ``m`` times is moved once);
 3. diffuse with ``Δ · s_l`` and apply the joint limits;
-4. weigh with ``β_l ℓ_l`` (β by the schedule, :func:`jaxmocap.annealing.choose_beta`) and normalise.
+4. weigh with ``β_l ℓ_l`` (β by the schedule, :func:`jaxmocap.filters.annealing.choose_beta`) and normalise.
 
 The moves work in whitened coordinates ``u = (x − x₀) / (Δ · s_l)``: the state mixes metres and radians, and a step
 of one unit is one standard deviation of the layer's diffusion in every entry. With ``g = ∂ℓ_l/∂x`` the optimiser
@@ -46,11 +46,11 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from jaxmocap.annealing import Schedule
 from jaxmocap.filters import base
+from jaxmocap.filters.annealing import Schedule
 from jaxmocap.filters.apf import weigh_layer
 from jaxmocap.filters.base import Info, Layer, State
-from jaxmocap.gradients import batch_value_and_grad
+from jaxmocap.likelihood.gradients import batch_value_and_grad
 
 __all__ = ["DEFAULT_REFINE", "OPTIMIZERS", "GradientMove", "HybridAPF", "gradient_ascent", "make_optimizer"]
 

@@ -14,7 +14,7 @@ When the likelihood factorises, ``p(z | x) = Π_k p_k(z | x_{G_k})``, and the dy
 the final weighted set targets the exact filtering posterior (weighted resampling, MacCormick & Isard).
 DOFs in no group are never diffused.
 
-Hierarchical sampling: with a ``schedule`` (:class:`jaxmocap.annealing.Schedule`) every level runs that schedule's
+Hierarchical sampling: with a ``schedule`` (:class:`jaxmocap.filters.annealing.Schedule`) every level runs that schedule's
 annealing layers on its group (as in :class:`jaxmocap.filters.apf.APF`, diffusion ``Δ[G_k] · s_l``), and the
 likelihood receives ``Layer(index=l, beta, partition=k)``: ``loglik_batch(X, observation, layer)``.
 
@@ -42,9 +42,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmocap import annealing
-from jaxmocap.annealing import Schedule
-from jaxmocap.filters import base
+from jaxmocap.filters import annealing, base
+from jaxmocap.filters.annealing import Schedule
 from jaxmocap.filters.base import Info, Layer, State
 
 __all__ = ["Info", "Partitioned", "State", "hierarchical"]

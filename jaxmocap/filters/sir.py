@@ -23,8 +23,7 @@ from collections.abc import Callable
 import jax
 import jax.numpy as jnp
 
-from jaxmocap import annealing
-from jaxmocap.filters import base
+from jaxmocap.filters import annealing, base
 from jaxmocap.filters.base import Info, State
 
 __all__ = ["SIR", "Info", "State"]
@@ -35,7 +34,7 @@ class SIR:
     """Bootstrap particle filter with random-walk dynamics.
 
     Arrays (traced): ``diffusion_std (D,)`` (Δ), ``lower, upper (D,)`` joint limits or None.
-    Static: ``loglik_batch``, ``num_particles``, ``resampling`` (a :mod:`jaxmocap.resampling` scheme name),
+    Static: ``loglik_batch``, ``num_particles``, ``resampling`` (a :mod:`jaxmocap.filters.resampling` scheme name),
     ``limit_mode``, ``circular`` (tuple of bools per DOF, or None), ``resample_threshold`` (None: resample every frame;
     else resample when the survival rate is below it), ``recovery`` (``"reinit"`` or ``"uniform"``) and
     ``recovery_widen`` (std multiplier of the re-initialised cloud).

@@ -11,7 +11,7 @@
 * ``diagnostics.jsonl`` gets one JSON line appended and flushed; ``diagnostics.json`` (the same records as one
   document) is rewritten atomically at most once per ``json_interval`` seconds and when the writer closes.
 
-``poses.npz`` holds ``joints (T, 15, 3)`` metres named by ``joint_names`` (:data:`jaxmocap.body.EVAL_JOINTS`;
+``poses.npz`` holds ``joints (T, 15, 3)`` metres named by ``joint_names`` (:data:`jaxmocap.geometry.body.EVAL_JOINTS`;
 NaN for joints the model lacks), ``state (T, D)`` named by ``dof_names``, ``frame_index (T,)`` (frame numbers of
 the input), ``time (T,)`` seconds, ``fps`` and ``model``. Reopening a folder with ``resume=True`` keeps the first
 ``keep`` frames (the ones a resume checkpoint covers) and rewrites the CSV and the journal to match.
@@ -42,8 +42,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmocap import body as body_mod
 from jaxmocap.errors import MocapInputError
+from jaxmocap.geometry import body as body_mod
 from jaxmocap.io import bvh
 from jaxmocap.io.mocap import Motion, matrix_to_euler, up_axis_matrix
 
@@ -136,7 +136,7 @@ def _read_npz(path: pathlib.Path) -> dict:
 
 def eval_joints_of(model: body_mod.BodyModel, joints: np.ndarray) -> np.ndarray:
     """Model joints ``(..., J_model, 3)`` (``model.joint_names`` order) → ``(..., 15, 3)`` in
-    :data:`~jaxmocap.body.EVAL_JOINTS` order with NaN for the joints the model lacks."""
+    :data:`~jaxmocap.geometry.body.EVAL_JOINTS` order with NaN for the joints the model lacks."""
     joints = np.asarray(joints, np.float64)
     out = np.full(joints.shape[:-2] + (len(body_mod.EVAL_JOINTS), 3), np.nan)
     for k, name in enumerate(model.joint_names):

@@ -17,9 +17,9 @@ Up-axis conversion: a y-up right-handed frame (BVH, CMU ASF) maps to the z-up ri
 permutation ``(x, y, z)_yup -> (z, x, y)_zup``, i.e. ``p_zup = A p_yup`` with
 ``A = [[0, 0, 1], [1, 0, 0], [0, 1, 0]]`` (det +1, so no mirror). Rotations become ``A L Aᵀ``. The CMU subjects
 face +z with their left side towards +x in the files, so after the conversion they face +x with their left
-towards +y: the rest orientation of the body presets in :mod:`jaxmocap.body`.
+towards +y: the rest orientation of the body presets in :mod:`jaxmocap.geometry.body`.
 
-Evaluation joints (:data:`jaxmocap.body.EVAL_JOINTS`) of a CMU skeleton, each defined on the bones, with its
+Evaluation joints (:data:`jaxmocap.geometry.body.EVAL_JOINTS`) of a CMU skeleton, each defined on the bones, with its
 joint in the CMU ASF / the 3ds Max-friendly cgspeed BVH / the MotionBuilder-friendly cgspeed BVH:
 
 * root — the pelvis, the root: ``root`` / ``Hips`` / ``Hips``;
@@ -49,7 +49,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from jaxmocap.body import EVAL_JOINTS
+from jaxmocap.geometry.body import EVAL_JOINTS
 
 #: ``p_zup = Y_UP_TO_Z_UP @ p_yup``: the cyclic permutation (x, y, z)_yup -> (z, x, y)_zup.
 Y_UP_TO_Z_UP = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
@@ -373,7 +373,7 @@ def _spec_points(motion: Motion, spec: JointSpec, joints: np.ndarray, ends: np.n
 
 
 def eval_joints(motion: Motion, mapping: Mapping[str, JointSpec] | None = None) -> np.ndarray:
-    """``(T, 15, 3)`` world positions of :data:`jaxmocap.body.EVAL_JOINTS` (in that order), metres, z up.
+    """``(T, 15, 3)`` world positions of :data:`jaxmocap.geometry.body.EVAL_JOINTS` (in that order), metres, z up.
 
     ``mapping`` gives each evaluation joint as a joint name or ``("end_mid", name)``; by default it is found
     among the CMU skeletons of the module docstring (:func:`eval_mapping`).
@@ -395,7 +395,7 @@ def rest_eval_joints(motion: Motion, mapping: Mapping[str, JointSpec] | None = N
 
 
 def body_dimensions_from_motion(motion: Motion, mapping: Mapping[str, JointSpec] | None = None) -> dict:
-    """Dimensions of :func:`jaxmocap.body.full25` (keys of ``body.DEFAULT_DIMENSIONS``) measured on the skeleton.
+    """Dimensions of :func:`jaxmocap.geometry.body.full25` (keys of ``body.DEFAULT_DIMENSIONS``) measured on the skeleton.
 
     Measured on the rest pose (bone lengths do not change over a clip), with ``u`` the unit vector from the root
     to the thorax (the torso axis) and ``E`` the evaluation joints of :func:`rest_eval_joints`:

@@ -5,7 +5,7 @@ Layout of a Pose2Sim trial (the ``Demo_SinglePerson`` demo):
 
 * ``videos/camNN.mp4`` (or, for small copies, ``images/camNN/NNNN.jpg``), one per camera, frame ``t`` of every
   camera the same instant;
-* a Pose2Sim calibration TOML (OpenCV convention, :func:`jaxmocap.camera.load_pose2sim_toml`);
+* a Pose2Sim calibration TOML (OpenCV convention, :func:`jaxmocap.geometry.camera.load_pose2sim_toml`);
 * ``camNN_json/camNN.NNNN.json``: OpenPose BODY_25B detections of every person in view;
 * a ``.trc`` file of the 3D keypoints Pose2Sim triangulated from them (y-up, see :mod:`jaxmocap.io.trc`).
 
@@ -14,7 +14,7 @@ the narrow frames in the calibration's pixel coordinates, so the frames are padd
 repeated) to the calibrated width.
 
 **Scale.** The source delivers images resized by ``scale`` (``cv2.INTER_AREA``) with the rig and the keypoints
-mapped to the resized pixels (:func:`jaxmocap.camera.scale_images`: ``u' = (u + 0.5)·s − 0.5``), so a tracker can
+mapped to the resized pixels (:func:`jaxmocap.geometry.camera.scale_images`: ``u' = (u + 0.5)·s − 0.5``), so a tracker can
 work on small images without resizing every frame twice.
 
 **Subject.** A file can hold bystanders; the subject is the person whose confident keypoints (c > 0.1) span the
@@ -32,9 +32,9 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
-from jaxmocap import body as body_mod
-from jaxmocap import camera
 from jaxmocap.errors import MocapInputError
+from jaxmocap.geometry import body as body_mod
+from jaxmocap.geometry import camera
 from jaxmocap.io.trc import load_trc
 
 __all__ = [
@@ -65,7 +65,7 @@ KEYPOINT_OF_TRC = {
     "Head": 18,
 }
 
-#: ``.trc`` markers averaged for each evaluation joint (:data:`jaxmocap.body.EVAL_JOINTS`). ``root`` is the middle
+#: ``.trc`` markers averaged for each evaluation joint (:data:`jaxmocap.geometry.body.EVAL_JOINTS`). ``root`` is the middle
 #: of the hips; ``head`` (the model's head centre) is approximated by the middle of the head top and the nose.
 REFERENCE_OF = {
     "root": ("LHip", "RHip"),
@@ -131,7 +131,7 @@ def subject_keypoints(path: str | os.PathLike, num_keypoints: int = 25) -> np.nd
 
 
 def body_dimensions(keypoints: np.ndarray, rig: camera.Rig) -> dict[str, float]:
-    """Subject dimensions (metres) for :func:`jaxmocap.body.build` from detections ``(T, V, 25, 3)`` (BODY_25B,
+    """Subject dimensions (metres) for :func:`jaxmocap.geometry.body.build` from detections ``(T, V, 25, 3)`` (BODY_25B,
     pixels of ``rig``): every keypoint triangulated per frame (confidence > 0.3 in at least two views), then the
     median over frames of each limb length (both sides pooled), shoulder and hip widths, the torso length
     ``|neck − mid-hip|`` and the shoulder drop ``|neck − mid-shoulder|``, with ``hip_drop = 0``: the detector's hips
@@ -179,7 +179,7 @@ def body_dimensions(keypoints: np.ndarray, rig: camera.Rig) -> dict[str, float]:
 
 
 class Pose2SimSource:
-    """A Pose2Sim trial as a tracking source (the interface of :class:`jaxmocap.tracker.VideoSource`).
+    """A Pose2Sim trial as a tracking source (the interface of :class:`jaxmocap.tracking.tracker.VideoSource`).
 
     ``calibration``: Pose2Sim TOML; ``videos``: one file per camera, or ``image_dirs``: one folder of
     ``NNNN.jpg``/``.png`` per camera whose frame numbers are ``frames``; ``keypoint_dirs``: one OpenPose JSON folder
@@ -289,7 +289,7 @@ class Pose2SimSource:
         return cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
 
     def read(self, t: int, masks: bool = True, depth: bool = True):
-        from jaxmocap.tracker import BadFrame, FrameData
+        from jaxmocap.tracking.tracker import BadFrame, FrameData
 
         f = self.frame_numbers[t]
         images = []

@@ -5,15 +5,15 @@ Layout of a sequence folder (``T`` frames, ``V`` cameras; every image is a PNG n
 
 .. code-block:: text
 
-    calibration.toml            canonical Pose2Sim-layout TOML (jaxmocap.camera.save_calibration), metres, z up
+    calibration.toml            canonical Pose2Sim-layout TOML (jaxmocap.geometry.camera.save_calibration), metres, z up
     meta.json                   {"frames": T, "fps": F, ...}: the frame count is the one authority
     views/<camera name>/rgb/    8-bit colour images (required)
     views/<camera name>/mask/   8-bit foreground masks, 255 = person, 0 = background (optional)
     views/<camera name>/depth/  16-bit depth along the camera z axis in millimetres, 0 = no depth (optional)
     views/<camera name>/labels/ 8-bit part labels: 0 = background, k + 1 = part k of meta["parts"] (optional)
     groundtruth.npz             joints (T, 15, 3) metres, z up, in the order of joint_names
-                                (= jaxmocap.body.EVAL_JOINTS); all_joints (T, J, 3) / all_joint_names (optional)
-    body.toml                   body file of the subject (jaxmocap.body.load_body) (optional; meta["body"])
+                                (= jaxmocap.geometry.body.EVAL_JOINTS); all_joints (T, J, 3) / all_joint_names (optional)
+    body.toml                   body file of the subject (jaxmocap.geometry.body.load_body) (optional; meta["body"])
 
 A channel folder, when present, holds exactly one image per frame for every camera; image sizes agree with the
 calibration. :func:`load_sequence` checks the structure up front and reads images lazily, one at a time, raising
@@ -37,9 +37,9 @@ from collections.abc import Iterator, Mapping
 import cv2
 import numpy as np
 
-from jaxmocap import camera
-from jaxmocap.body import EVAL_JOINTS
 from jaxmocap.errors import MocapInputError
+from jaxmocap.geometry import camera
+from jaxmocap.geometry.body import EVAL_JOINTS
 
 CALIBRATION = "calibration.toml"
 META = "meta.json"
@@ -179,7 +179,7 @@ def write_groundtruth(
     **extra: np.ndarray,
 ) -> pathlib.Path:
     """``root/groundtruth.npz``: ``joints (T, 15, 3)`` (metres, z up) with ``joint_names`` =
-    :data:`jaxmocap.body.EVAL_JOINTS`, optionally ``all_joints (T, J, 3)`` / ``all_joint_names (J,)`` and any
+    :data:`jaxmocap.geometry.body.EVAL_JOINTS`, optionally ``all_joints (T, J, 3)`` / ``all_joint_names (J,)`` and any
     further named arrays (e.g. ``frame_index``, the scene primitives)."""
     joints = np.asarray(joints, dtype=np.float64)
     if joints.ndim != 3 or joints.shape[1:] != (len(EVAL_JOINTS), 3):
@@ -340,7 +340,7 @@ class Sequence:
     """A sequence folder opened by :func:`load_sequence`.
 
     Attributes:
-      root: the folder; rig: its calibration (:class:`jaxmocap.camera.Rig`, NumPy float64);
+      root: the folder; rig: its calibration (:class:`jaxmocap.geometry.camera.Rig`, NumPy float64);
       num_frames: ``T``; fps: frames per second; views: one :class:`ViewFrames` per camera, in calibration
       order; channels: the channels every view has; groundtruth: :class:`GroundTruth` or None;
       body_path: the subject's body file or None; meta: the parsed ``meta.json``.
@@ -423,7 +423,7 @@ def _load_groundtruth(path: pathlib.Path, T: int) -> GroundTruth:
     if joints.shape != (T, len(names), 3):
         raise MocapInputError(path, f"'joints' is {joints.shape}, expected ({T}, {len(names)}, 3)")
     if names != EVAL_JOINTS:
-        raise MocapInputError(path, f"'joint_names' must be jaxmocap.body.EVAL_JOINTS, got {names}")
+        raise MocapInputError(path, f"'joint_names' must be jaxmocap.geometry.body.EVAL_JOINTS, got {names}")
     if not np.all(np.isfinite(joints)):
         raise MocapInputError(path, "'joints' has non-finite values")
     all_joints = data.pop("all_joints", None)

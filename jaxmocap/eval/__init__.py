@@ -1,0 +1,1 @@
+"""Evaluation: joint-error metrics, plots and overlays, mode counting with mixtures."""

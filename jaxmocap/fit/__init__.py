@@ -1,0 +1,1 @@
+"""Fitting: the solver wrappers (the only jaxopt caller), inverse kinematics, shape calibration."""

@@ -1,0 +1,1 @@
+"""Body geometry: product-of-exponentials kinematics, body models, flesh primitives, the camera model."""

@@ -1,0 +1,550 @@
+"""Articulated body models: kinematic tree, named degrees of freedom, joint limits, flesh primitives.
+
+Conventions (DESIGN.md): metres and radians, world right-handed with **z up**. At the zero state every preset
+stands upright facing **+x** with its left side towards **+y**, arms hanging along the body. The state vector is
+root translation, root orientation, then joint angles, in the order of ``model.dof_names``.
+
+Body dimensions (limb lengths, radii) come from a small TOML body file so a subject can be fitted:
+
+.. code-block:: toml
+
+    model = "full25"
+    [dimensions]          # metres; a key may be prefixed with left_ / right_ to break symmetry
+    torso_length = 0.50
+    upper_arm_length = 0.29
+
+A model is built from its dimensions by pure ``jax.numpy`` code, so gradients flow to limb lengths and radii
+(``jax.grad(lambda d: loss(full25(d)))``).
+
+Presets:
+
+* ``upper9``  — López Méndez (2009) Table 6.1: base-of-neck position (3), body orientation θ0 (1), neck y,
+  shoulders x/y/z, elbows y: the 13-D state of eq. 6.1.
+* ``upper14`` — Fontmarty et al. (IROS 2007): 6 global DOF, 3 per shoulder, 1 per elbow; head rigid with the torso.
+* ``full25``  — Li & Kulić: root translation 3, root rotation 3, neck 3, shoulders 3+3, elbows 1+1, hips 3+3,
+  knees 1+1; every angle limited.
+* ``parsec31`` — PARSEC bodytrack's 10-cylinder body (see :mod:`jaxmocap.parsec.model`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import tomllib
+from collections.abc import Mapping
+from importlib import resources
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxmocap.errors import MocapInputError
+from jaxmocap.geometry import kinematics
+
+#: The 15 evaluation joints of Li & Kulić, in the order every output of the project uses.
+EVAL_JOINTS: tuple[str, ...] = (
+    "root",
+    "thorax",
+    "head",
+    "left_shoulder",
+    "left_elbow",
+    "left_wrist",
+    "right_shoulder",
+    "right_elbow",
+    "right_wrist",
+    "left_hip",
+    "left_knee",
+    "left_ankle",
+    "right_hip",
+    "right_knee",
+    "right_ankle",
+)
+
+SHAPE_NONE, SHAPE_CONE, SHAPE_ELLIPSOID = "none", "cone", "ellipsoid"
+
+
+@dataclasses.dataclass(frozen=True)
+class BodyModel:
+    """A body model: a pytree whose leaves are arrays and whose topology is static.
+
+    Array fields (``S`` segments, ``D`` DOFs, ``J`` evaluation joints):
+      rest_rotation ``(S, 3, 3)``, offset ``(S, 3)``: joint frame of each segment in its parent's frame at zero state;
+      dof_axis ``(D, 3)``: unit axes in the joint frames;
+      lower, upper, rest_pose ``(D,)``: joint limits and the rest (initial / IK prior) state;
+      joint_point ``(J, 3)``: evaluation joints in their segment frames;
+      shape_start, shape_end ``(S, 3)``, radius_start, radius_end ``(S,)``: the flesh primitive of each segment in its
+      frame — a truncated cone between the two points, or an ellipsoid whose axis runs between them with equatorial
+      radius ``radius_start``.
+
+    Static fields: name, topology (:class:`jaxmocap.geometry.kinematics.Topology`), joint_names (subset of
+    :data:`EVAL_JOINTS`, in that order), joint_segment, shape_kind (per segment).
+    """
+
+    rest_rotation: jnp.ndarray
+    offset: jnp.ndarray
+    dof_axis: jnp.ndarray
+    lower: jnp.ndarray
+    upper: jnp.ndarray
+    rest_pose: jnp.ndarray
+    joint_point: jnp.ndarray
+    shape_start: jnp.ndarray
+    shape_end: jnp.ndarray
+    radius_start: jnp.ndarray
+    radius_end: jnp.ndarray
+    name: str = dataclasses.field(metadata=dict(static=True), default="")
+    topology: kinematics.Topology | None = dataclasses.field(metadata=dict(static=True), default=None)
+    joint_names: tuple[str, ...] = dataclasses.field(metadata=dict(static=True), default=())
+    joint_segment: tuple[int, ...] = dataclasses.field(metadata=dict(static=True), default=())
+    shape_kind: tuple[str, ...] = dataclasses.field(metadata=dict(static=True), default=())
+
+    @property
+    def dof_names(self) -> tuple[str, ...]:
+        return self.topology.dof_names
+
+    @property
+    def num_dofs(self) -> int:
+        return self.topology.num_dofs
+
+    @property
+    def segment_names(self) -> tuple[str, ...]:
+        return self.topology.segment_names
+
+    @property
+    def angular(self) -> np.ndarray:
+        """``(D,)`` bool: which state entries are angles (revolute)."""
+        return np.asarray([k == "R" for k in self.topology.dof_kinds])
+
+    def dof_index(self, name: str) -> int:
+        return self.topology.dof_names.index(name)
+
+
+jax.tree_util.register_dataclass(
+    BodyModel,
+    data_fields=[
+        "rest_rotation",
+        "offset",
+        "dof_axis",
+        "lower",
+        "upper",
+        "rest_pose",
+        "joint_point",
+        "shape_start",
+        "shape_end",
+        "radius_start",
+        "radius_end",
+    ],
+    meta_fields=["name", "topology", "joint_names", "joint_segment", "shape_kind"],
+)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Evaluation of a model
+
+
+def segment_poses(model: BodyModel, x: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """World transforms of all segments for one state ``x (D,)``: ``R (S, 3, 3)``, ``t (S, 3)``. vmap for particles."""
+    return kinematics.segment_poses(model.topology, model.rest_rotation, model.offset, model.dof_axis, x)
+
+
+def joint_positions(model: BodyModel, x: jnp.ndarray) -> jnp.ndarray:
+    """World positions ``(J, 3)`` of the model's evaluation joints (``model.joint_names``) for one state."""
+    R, t = segment_poses(model, x)
+    return kinematics.transform_points(R, t, model.joint_point, model.joint_segment)
+
+
+def clip_to_limits(model: BodyModel, x: jnp.ndarray) -> jnp.ndarray:
+    """Clamp a state (any leading shape) to the joint limits."""
+    return jnp.clip(x, model.lower, model.upper)
+
+
+def within_limits(model: BodyModel, x: jnp.ndarray) -> jnp.ndarray:
+    """``(...)`` bool: all entries inside the limits."""
+    return jnp.all((x >= model.lower) & (x <= model.upper), axis=-1)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Building presets from dimensions
+
+_DEG = math.pi / 180.0
+_BIG = 100.0  # metres / radians treated as "unlimited" for root translation
+_NECK_HEIGHT = 1.45  # rest height of the base of the neck for the upper-body presets (standing adult)
+
+#: Dimensions that are signed offsets (e.g. CMU shoulders sit above the base of the neck: a negative drop).
+SIGNED_DIMENSION_SUFFIX = "_drop"
+
+DEFAULT_DIMENSIONS: dict[str, float] = {
+    "torso_length": 0.50,  # pelvis centre to base of neck
+    "torso_radius_bottom": 0.13,
+    "torso_radius_top": 0.15,
+    "shoulder_width": 0.36,  # between the shoulder joints
+    "shoulder_drop": 0.03,  # shoulder joints below the base of the neck
+    "neck_length": 0.08,
+    "head_length": 0.23,
+    "head_radius": 0.09,
+    "hip_width": 0.18,  # between the hip joints
+    "hip_drop": 0.06,  # hip joints below the pelvis centre
+    "upper_arm_length": 0.29,
+    "upper_arm_radius_top": 0.05,
+    "upper_arm_radius_bottom": 0.04,
+    "forearm_length": 0.26,  # elbow to wrist
+    "forearm_radius_top": 0.04,
+    "forearm_radius_bottom": 0.03,
+    "thigh_length": 0.43,
+    "thigh_radius_top": 0.08,
+    "thigh_radius_bottom": 0.06,
+    "shin_length": 0.43,
+    "shin_radius_top": 0.055,
+    "shin_radius_bottom": 0.04,
+}
+
+
+def _dim(dims: Mapping[str, object], key: str, side: str = ""):
+    """Look up ``side_key`` (``left_``/``right_``) then ``key`` in ``dims``, then the defaults."""
+    if side and f"{side}_{key}" in dims:
+        return jnp.asarray(dims[f"{side}_{key}"])
+    if key in dims:
+        return jnp.asarray(dims[key])
+    return jnp.asarray(DEFAULT_DIMENSIONS[key])
+
+
+@dataclasses.dataclass
+class _Builder:
+    """Accumulates segments and DOFs; arrays may be traced (they are built with jax.numpy)."""
+
+    dtype: object = jnp.float32
+    seg_names: list = dataclasses.field(default_factory=list)
+    parents: list = dataclasses.field(default_factory=list)
+    seg_dofs: list = dataclasses.field(default_factory=list)
+    offsets: list = dataclasses.field(default_factory=list)
+    dof_names: list = dataclasses.field(default_factory=list)
+    dof_kinds: list = dataclasses.field(default_factory=list)
+    axes: list = dataclasses.field(default_factory=list)
+    lower: list = dataclasses.field(default_factory=list)
+    upper: list = dataclasses.field(default_factory=list)
+    rest: list = dataclasses.field(default_factory=list)
+    shapes: list = dataclasses.field(default_factory=list)
+    joints: dict = dataclasses.field(default_factory=dict)
+
+    def vec(self, *xs):
+        return jnp.stack([jnp.asarray(v, dtype=self.dtype) for v in xs])
+
+    def segment(self, name, parent, offset, dofs=(), shape=(SHAPE_NONE, None, None, 0.0, 0.0)):
+        """dofs: sequence of (dof name, kind, axis, lower, upper[, rest])."""
+        idx = []
+        for d in dofs:
+            name_d, kind, axis, lo, hi = d[:5]
+            idx.append(len(self.dof_names))
+            self.dof_names.append(name_d)
+            self.dof_kinds.append(kind)
+            self.axes.append(np.asarray(axis, dtype=np.float64))
+            self.lower.append(lo)
+            self.upper.append(hi)
+            self.rest.append(jnp.asarray(d[5] if len(d) > 5 else 0.0, self.dtype))
+        self.seg_names.append(name)
+        self.parents.append(-1 if parent is None else self.seg_names.index(parent))
+        self.seg_dofs.append(tuple(idx))
+        self.offsets.append(offset)
+        self.shapes.append(shape)
+        return len(self.seg_names) - 1
+
+    def joint(self, name, segment, point):
+        self.joints[name] = (self.seg_names.index(segment), point)
+
+    def build(self, model_name: str) -> BodyModel:
+        S = len(self.seg_names)
+        topology = kinematics.Topology(
+            segment_names=tuple(self.seg_names),
+            parents=tuple(self.parents),
+            segment_dofs=tuple(self.seg_dofs),
+            dof_names=tuple(self.dof_names),
+            dof_kinds=tuple(self.dof_kinds),
+            rest_rotated=(False,) * S,
+        )
+        zero = self.vec(0.0, 0.0, 0.0)
+        names = tuple(j for j in EVAL_JOINTS if j in self.joints)
+        kinds, starts, ends, r0, r1 = [], [], [], [], []
+        for kind, a, b, ra, rb in self.shapes:
+            kinds.append(kind)
+            starts.append(zero if a is None else a)
+            ends.append(zero if b is None else b)
+            r0.append(jnp.asarray(ra, self.dtype))
+            r1.append(jnp.asarray(rb, self.dtype))
+        return BodyModel(
+            rest_rotation=jnp.broadcast_to(jnp.eye(3, dtype=self.dtype), (S, 3, 3)),
+            offset=jnp.stack(self.offsets).astype(self.dtype),
+            dof_axis=jnp.asarray(np.stack(self.axes), self.dtype),
+            lower=jnp.asarray(self.lower, self.dtype),
+            upper=jnp.asarray(self.upper, self.dtype),
+            rest_pose=jnp.stack(self.rest),
+            joint_point=jnp.stack([self.joints[n][1] for n in names]).astype(self.dtype),
+            shape_start=jnp.stack(starts).astype(self.dtype),
+            shape_end=jnp.stack(ends).astype(self.dtype),
+            radius_start=jnp.stack(r0),
+            radius_end=jnp.stack(r1),
+            name=model_name,
+            topology=topology,
+            joint_names=names,
+            joint_segment=tuple(self.joints[n][0] for n in names),
+            shape_kind=tuple(kinds),
+        )
+
+
+X, Y, Z = (1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)
+NEG_Y = (0.0, -1.0, 0.0)
+
+
+def _translation_dofs(prefix: str, height=0.0):
+    """Prismatic x, y, z DOFs; the rest value of z is ``height`` (the root's height when standing)."""
+    rest = (0.0, 0.0, height)
+    return [
+        (f"{prefix}_t{a}", "P", ax, -_BIG, _BIG, r) for a, ax, r in zip("xyz", (X, Y, Z), rest, strict=True)
+    ]
+
+
+def _arm(b: _Builder, dims, side: str, parent: str, shoulder_point, shoulder_dofs: bool = True):
+    """Upper arm (shoulder x, y, z) and forearm (elbow about −y: positive flexion brings the hand forward)."""
+    s = 1.0 if side == "left" else -1.0
+    L1 = _dim(dims, "upper_arm_length", side)
+    L2 = _dim(dims, "forearm_length", side)
+    # abduction about +x lifts the left arm towards +y; the right arm mirrors it.
+    abd = (-30 * _DEG, 170 * _DEG) if s > 0 else (-170 * _DEG, 30 * _DEG)
+    dofs = [
+        (f"{side}_shoulder_rx", "R", X, *abd),
+        (f"{side}_shoulder_ry", "R", Y, -170 * _DEG, 60 * _DEG),
+        (f"{side}_shoulder_rz", "R", Z, -90 * _DEG, 90 * _DEG),
+    ]
+    b.segment(
+        f"{side}_upper_arm",
+        parent,
+        shoulder_point,
+        dofs if shoulder_dofs else (),
+        (
+            SHAPE_CONE,
+            b.vec(0.0, 0.0, 0.0),
+            b.vec(0.0, 0.0, -L1),
+            _dim(dims, "upper_arm_radius_top", side),
+            _dim(dims, "upper_arm_radius_bottom", side),
+        ),
+    )
+    b.segment(
+        f"{side}_forearm",
+        f"{side}_upper_arm",
+        b.vec(0.0, 0.0, -L1),
+        [(f"{side}_elbow", "R", NEG_Y, 0.0, 150 * _DEG)],
+        (
+            SHAPE_CONE,
+            b.vec(0.0, 0.0, 0.0),
+            b.vec(0.0, 0.0, -L2),
+            _dim(dims, "forearm_radius_top", side),
+            _dim(dims, "forearm_radius_bottom", side),
+        ),
+    )
+    b.joint(f"{side}_shoulder", f"{side}_upper_arm", b.vec(0.0, 0.0, 0.0))
+    b.joint(f"{side}_elbow", f"{side}_forearm", b.vec(0.0, 0.0, 0.0))
+    b.joint(f"{side}_wrist", f"{side}_forearm", b.vec(0.0, 0.0, -L2))
+
+
+def _leg(b: _Builder, dims, side: str, parent: str, hip_point):
+    """Thigh (hip x, y, z) and shin (knee about +y: positive flexion moves the foot backwards)."""
+    s = 1.0 if side == "left" else -1.0
+    L1 = _dim(dims, "thigh_length", side)
+    L2 = _dim(dims, "shin_length", side)
+    abd = (-30 * _DEG, 70 * _DEG) if s > 0 else (-70 * _DEG, 30 * _DEG)
+    b.segment(
+        f"{side}_thigh",
+        parent,
+        hip_point,
+        [
+            (f"{side}_hip_rx", "R", X, *abd),
+            (f"{side}_hip_ry", "R", Y, -120 * _DEG, 30 * _DEG),
+            (f"{side}_hip_rz", "R", Z, -60 * _DEG, 60 * _DEG),
+        ],
+        (
+            SHAPE_CONE,
+            b.vec(0.0, 0.0, 0.0),
+            b.vec(0.0, 0.0, -L1),
+            _dim(dims, "thigh_radius_top", side),
+            _dim(dims, "thigh_radius_bottom", side),
+        ),
+    )
+    b.segment(
+        f"{side}_shin",
+        f"{side}_thigh",
+        b.vec(0.0, 0.0, -L1),
+        [(f"{side}_knee", "R", Y, 0.0, 150 * _DEG)],
+        (
+            SHAPE_CONE,
+            b.vec(0.0, 0.0, 0.0),
+            b.vec(0.0, 0.0, -L2),
+            _dim(dims, "shin_radius_top", side),
+            _dim(dims, "shin_radius_bottom", side),
+        ),
+    )
+    b.joint(f"{side}_hip", f"{side}_thigh", b.vec(0.0, 0.0, 0.0))
+    b.joint(f"{side}_knee", f"{side}_shin", b.vec(0.0, 0.0, 0.0))
+    b.joint(f"{side}_ankle", f"{side}_shin", b.vec(0.0, 0.0, -L2))
+
+
+def _head_shape(b: _Builder, dims):
+    n, h, r = _dim(dims, "neck_length"), _dim(dims, "head_length"), _dim(dims, "head_radius")
+    return (SHAPE_ELLIPSOID, b.vec(0.0, 0.0, n), b.vec(0.0, 0.0, n + h), r, r), b.vec(0.0, 0.0, n + 0.5 * h)
+
+
+def full25(dims: Mapping[str, object] | None = None, dtype=jnp.float32) -> BodyModel:
+    """Li & Kulić's 25-DOF full body. Root at the pelvis centre; rotation ``Rz·Ry·Rx`` (yaw, pitch, roll)."""
+    dims = dims or {}
+    b = _Builder(dtype=dtype)
+    T = _dim(dims, "torso_length")
+    standing = _dim(dims, "hip_drop") + _dim(dims, "thigh_length") + _dim(dims, "shin_length")
+    root_dofs = _translation_dofs("root", standing) + [
+        ("root_rz", "R", Z, -2 * math.pi, 2 * math.pi),
+        ("root_ry", "R", Y, -90 * _DEG, 90 * _DEG),
+        ("root_rx", "R", X, -90 * _DEG, 90 * _DEG),
+    ]
+    b.segment(
+        "torso",
+        None,
+        b.vec(0.0, 0.0, 0.0),
+        root_dofs,
+        (
+            SHAPE_CONE,
+            b.vec(0.0, 0.0, 0.0),
+            b.vec(0.0, 0.0, T),
+            _dim(dims, "torso_radius_bottom"),
+            _dim(dims, "torso_radius_top"),
+        ),
+    )
+    head_shape, head_centre = _head_shape(b, dims)
+    b.segment(
+        "head",
+        "torso",
+        b.vec(0.0, 0.0, T),
+        [
+            ("neck_rx", "R", X, -40 * _DEG, 40 * _DEG),
+            ("neck_ry", "R", Y, -50 * _DEG, 60 * _DEG),
+            ("neck_rz", "R", Z, -70 * _DEG, 70 * _DEG),
+        ],
+        head_shape,
+    )
+    b.joint("root", "torso", b.vec(0.0, 0.0, 0.0))
+    b.joint("thorax", "torso", b.vec(0.0, 0.0, T))
+    b.joint("head", "head", head_centre)
+    sw, sd = 0.5 * _dim(dims, "shoulder_width"), _dim(dims, "shoulder_drop")
+    for side, s in (("left", 1.0), ("right", -1.0)):
+        _arm(b, dims, side, "torso", b.vec(0.0, s * sw, T - sd))
+    hw, hd = 0.5 * _dim(dims, "hip_width"), _dim(dims, "hip_drop")
+    for side, s in (("left", 1.0), ("right", -1.0)):
+        _leg(b, dims, side, "torso", b.vec(0.0, s * hw, -hd))
+    return b.build("full25")
+
+
+def _upper(dims, dtype, model_name: str, root_dofs, neck_dofs) -> BodyModel:
+    """Upper body with its root at the base of the neck and the torso hanging below it."""
+    dims = dims or {}
+    b = _Builder(dtype=dtype)
+    T = _dim(dims, "torso_length")
+    b.segment(
+        "torso",
+        None,
+        b.vec(0.0, 0.0, 0.0),
+        root_dofs,
+        (
+            SHAPE_CONE,
+            b.vec(0.0, 0.0, -T),
+            b.vec(0.0, 0.0, 0.0),
+            _dim(dims, "torso_radius_bottom"),
+            _dim(dims, "torso_radius_top"),
+        ),
+    )
+    head_shape, head_centre = _head_shape(b, dims)
+    b.segment("head", "torso", b.vec(0.0, 0.0, 0.0), neck_dofs, head_shape)
+    b.joint("root", "torso", b.vec(0.0, 0.0, -T))
+    b.joint("thorax", "torso", b.vec(0.0, 0.0, 0.0))
+    b.joint("head", "head", head_centre)
+    sw, sd = 0.5 * _dim(dims, "shoulder_width"), _dim(dims, "shoulder_drop")
+    for side, s in (("left", 1.0), ("right", -1.0)):
+        _arm(b, dims, side, "torso", b.vec(0.0, s * sw, -sd))
+    return b.build(model_name)
+
+
+def upper9(dims: Mapping[str, object] | None = None, dtype=jnp.float32) -> BodyModel:
+    """The thesis' upper body (Table 6.1, eq. 6.1): 13-D state ``(x0, y0, z0, θ0, neck_y, shoulders, elbows)``."""
+    root = _translation_dofs("neck_base", _NECK_HEIGHT) + [("body_rz", "R", Z, -2 * math.pi, 2 * math.pi)]
+    neck = [("neck_ry", "R", Y, -50 * _DEG, 60 * _DEG)]
+    return _upper(dims, dtype, "upper9", root, neck)
+
+
+def upper14(dims: Mapping[str, object] | None = None, dtype=jnp.float32) -> BodyModel:
+    """Fontmarty et al.'s 14 DOF: 6 global (translation, ``Rz·Ry·Rx``), 3 per shoulder, 1 per elbow; rigid head."""
+    root = _translation_dofs("root", _NECK_HEIGHT) + [
+        ("root_rz", "R", Z, -2 * math.pi, 2 * math.pi),
+        ("root_ry", "R", Y, -90 * _DEG, 90 * _DEG),
+        ("root_rx", "R", X, -90 * _DEG, 90 * _DEG),
+    ]
+    return _upper(dims, dtype, "upper14", root, ())
+
+
+PRESETS = {"upper9": upper9, "upper14": upper14, "full25": full25}
+
+
+def build(name: str, dims: Mapping[str, object] | None = None, dtype=jnp.float32) -> BodyModel:
+    """Build a preset by name (``upper9``, ``upper14``, ``full25``, ``parsec31``)."""
+    if name == "parsec31":
+        from jaxmocap.parsec import model as parsec
+
+        return parsec.parsec31(dims, dtype=dtype)
+    if name not in PRESETS:
+        raise ValueError(f"unknown body model {name!r}; choose one of {sorted([*PRESETS, 'parsec31'])}")
+    return PRESETS[name](dims, dtype=dtype)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Body files
+
+
+def load_body_file(path: str | os.PathLike) -> tuple[str, dict[str, float]]:
+    """Read a body file: returns ``(model name, dimensions)``. Raises :class:`MocapInputError` on bad content."""
+    try:
+        with open(path, "rb") as f:
+            data = tomllib.load(f)
+    except OSError as e:
+        raise MocapInputError(path, f"cannot read body file: {e.strerror or e}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise MocapInputError(path, f"not valid TOML: {e}") from None
+    name = data.get("model")
+    if not isinstance(name, str):
+        raise MocapInputError(path, "body file needs a string 'model = \"...\"'")
+    dims = data.get("dimensions", {})
+    if not isinstance(dims, dict):
+        raise MocapInputError(path, "[dimensions] must be a table")
+    out = {}
+    for k, v in dims.items():
+        if not isinstance(v, int | float) or isinstance(v, bool) or not math.isfinite(v):
+            raise MocapInputError(path, f"dimension {k!r} must be a finite number, got {v!r}")
+        if v < 0 and not k.endswith(SIGNED_DIMENSION_SUFFIX):
+            raise MocapInputError(path, f"dimension {k!r} must be non-negative, got {v!r}")
+        out[k] = float(v)
+    return name, out
+
+
+def load_body(path: str | os.PathLike, dtype=jnp.float32) -> BodyModel:
+    """Build the model a body file names with its dimensions."""
+    name, dims = load_body_file(path)
+    try:
+        return build(name, dims, dtype=dtype)
+    except (ValueError, KeyError) as e:
+        raise MocapInputError(path, str(e)) from None
+
+
+def save_body(path: str | os.PathLike, model_name: str, dims: Mapping[str, float]) -> None:
+    """Write a body file (see the module docstring for its layout)."""
+    import tomli_w
+
+    with open(path, "wb") as f:
+        tomli_w.dump({"model": model_name, "dimensions": {k: float(v) for k, v in dims.items()}}, f)
+
+
+def default_body_path(name: str) -> str:
+    """Path of the body file shipped with the package for a preset (default dimensions)."""
+    return str(resources.files("jaxmocap") / "data" / "bodies" / f"{name}.toml")

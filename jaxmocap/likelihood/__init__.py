@@ -1,0 +1,1 @@
+"""The likelihood: cue energies, their Gibbs-form composition, per-layer schedules, map lookups, gradients."""

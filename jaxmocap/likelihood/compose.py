@@ -1,0 +1,562 @@
+"""Composition of cues into a Gibbs-form log-likelihood with per-layer, per-view schedules.
+
+``log p_l(z | x) = −Σ_c Σ_v λ_c,v(l) k_c w_v E_c,v(x, z)``
+
+with ``E_c,v`` the cue energies of :mod:`jaxmocap.likelihood.cues` (view-free cues have one term), ``k_c`` the cue weight,
+``w_v`` per-view weights and ``λ_c,v(l)`` the schedule of annealing layer ``l`` — López Méndez's feature-based
+annealing (eq. 5.2): each layer may weigh the cues differently, and here each view as well (e.g. a view whose
+segmentation is unreliable enters late). The annealing exponent β is applied by the filter (``p^β``); the schedule
+supplies the per-layer, per-cue, per-view part. Cues that need no image (3D blobs, ground, priors) compose the same
+way.
+
+Evaluation (:meth:`Likelihood.batch`, what the filters call):
+
+1. ``prepare``: everything that depends on the observation only (masked depth, packed colours, foreground
+   samples) is computed once per call;
+2. geometry per particle (:meth:`Likelihood.geometry`): FK, flesh points (run by run of points on one segment,
+   straight into camera coordinates), projection, facing test, one shared nearest-pixel index per sample set and
+   the visible index through which one gather reads a colour and whether the sample is seen, computed once for all
+   cues;
+3. particles are processed in chunks of ``chunk_size`` (``lax.map`` over vmapped chunks), so that the
+   ``(chunk, V, P)`` intermediates stay in cache — on CPU this is 2–3× faster than one vmap over all particles.
+
+A :class:`Likelihood` is a pytree (model, rig, flesh points, weights, schedule and reference data are leaves:
+gradients reach body dimensions and cameras), and its configuration is static.
+
+Example::
+
+    lik = Likelihood.create(model, rig, [Cue("foreground"), Cue("edges", 2.0)], num_layers=3, schedule="fbapf")
+    ll = jax.jit(lik.batch)(particles, observation, 0)   # (N,)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxmocap.features.observation import Observation
+from jaxmocap.geometry import body, camera, flesh, kinematics
+from jaxmocap.likelihood import cues, maps
+
+#: Li & Kulić's base A of ``w = A^(−d)`` (eq. 4): weight ``k`` on a [0, 1] energy is ``λ = k ln A``.
+LI_KULIC_BASE = 100.0
+
+
+@dataclasses.dataclass(frozen=True)
+class Cue:
+    """One term of the likelihood: cue ``name`` (a key of :data:`jaxmocap.likelihood.cues.CUES`), weight ``k_c`` and static
+    parameters (a tuple of ``(key, value)`` pairs or a dict, kept hashable)."""
+
+    name: str
+    weight: float = 1.0
+    params: tuple = ()
+
+    def __post_init__(self):
+        if self.name not in cues.CUES:
+            raise ValueError(f"unknown cue {self.name!r}; choose from {sorted(cues.CUES)}")
+        if isinstance(self.params, dict):
+            object.__setattr__(self, "params", tuple(sorted(self.params.items())))
+
+    @property
+    def param_dict(self) -> dict:
+        return dict(self.params)
+
+    @property
+    def spec(self) -> cues.CueSpec:
+        return cues.CUES[self.name]
+
+
+@dataclasses.dataclass(frozen=True)
+class Likelihood:
+    """A composed likelihood (see the module docstring). Build it with :meth:`create`.
+
+    Leaves: ``model``, ``rig``, ``surface`` (flesh points), ``view_weights (V,)``, ``schedule (L, C, V)``,
+    ``references`` (per cue: None or the reference arrays of :meth:`with_references`).
+    Static: ``cues`` (tuple of :class:`Cue`), ``contour_points`` (per silhouette line), ``chunk_size``.
+    """
+
+    model: body.BodyModel
+    rig: camera.Rig
+    surface: flesh.FleshPoints
+    view_weights: jnp.ndarray
+    schedule: jnp.ndarray
+    references: tuple = ()
+    cues: tuple = dataclasses.field(metadata=dict(static=True), default=())
+    contour_points: int = dataclasses.field(metadata=dict(static=True), default=8)
+    chunk_size: int = dataclasses.field(metadata=dict(static=True), default=128)
+
+    @staticmethod
+    def create(
+        model: body.BodyModel,
+        rig: camera.Rig,
+        cue_list: Sequence[Cue],
+        *,
+        num_layers: int = 1,
+        schedule: str | np.ndarray = "apf",
+        surface_points: int | flesh.SurfaceLayout = 600,
+        contour_points: int = 8,
+        view_weights: Sequence[float] | None = None,
+        chunk_size: int = 128,
+    ) -> Likelihood:
+        """Build a likelihood.
+
+        Args:
+          model, rig: body model and calibrated cameras (the rig of the observation's maps).
+          cue_list: the cues and their weights.
+          num_layers: annealing layers the schedule covers (a layer index beyond it uses the last row).
+          schedule: a preset name of :func:`schedule_preset`, or an explicit array of λ: ``(L, C)`` (the same for
+            every view) or ``(L, C, V)`` (per view; a view-free cue uses its view-0 entry, and its entries must
+            agree across views).
+          surface_points: total flesh samples, spread over segments in proportion to area (Li & Kulić: 15–75 per
+            cone), or a :class:`jaxmocap.geometry.flesh.SurfaceLayout`.
+          contour_points: samples on each silhouette line of each cone (and ``2×`` on the head's outline).
+          view_weights: ``w_v`` (default all 1).
+          chunk_size: particles per chunk in :meth:`batch` (0: one vmap over all particles).
+        """
+        cue_list = tuple(cue_list)
+        if not cue_list:
+            raise ValueError("a likelihood needs at least one cue")
+        V, C = rig.num_views, len(cue_list)
+        lam = (
+            schedule_preset(schedule, [c.name for c in cue_list], num_layers)
+            if isinstance(schedule, str)
+            else np.asarray(schedule, dtype=np.float32)
+        )
+        if lam.shape == (num_layers, C):
+            lam = np.repeat(lam[:, :, None], V, axis=2)
+        if lam.shape != (num_layers, C, V):
+            raise ValueError(
+                f"schedule must have shape (num_layers, num_cues) = {(num_layers, C)} "
+                f"or (num_layers, num_cues, num_views) = {(num_layers, C, V)}, got {lam.shape}"
+            )
+        for c, cue in enumerate(cue_list):
+            if not cue.spec.per_view and not np.all(lam[:, c, :] == lam[:, c, :1]):
+                raise ValueError(
+                    f"cue {cue.name!r} has no views: its schedule must be the same for every view"
+                )
+        w = np.ones(V, np.float32) if view_weights is None else np.asarray(view_weights, np.float32)
+        if w.shape != (V,):
+            raise ValueError(f"view_weights needs one weight per view ({V})")
+        dtype = model.offset.dtype
+        layout = (
+            surface_points
+            if isinstance(surface_points, flesh.SurfaceLayout)
+            else flesh.surface_layout(model, total=int(surface_points))
+        )
+        return Likelihood(
+            model=model,
+            rig=rig.to_jax(dtype),
+            surface=flesh.surface_points(model, layout),
+            view_weights=jnp.asarray(w, dtype),
+            schedule=jnp.asarray(lam, dtype),
+            references=(None,) * C,
+            cues=cue_list,
+            contour_points=contour_points,
+            chunk_size=int(chunk_size),
+        )
+
+    # -----------------------------------------------------------------------------------------------------------
+    # Configuration helpers
+
+    def _needs(self) -> frozenset:
+        out: set = set()
+        for c in self.cues:
+            out |= c.spec.needs(c.param_dict)
+        return frozenset(out)
+
+    def _context(self, c: int, aux=None) -> cues.CueContext:
+        cue = self.cues[c]
+        ref = self.references[c] if self.references else None
+        return cues.CueContext(
+            self.model.joint_names, cue.param_dict, self.rig, self.model, self.surface.segment, aux, ref
+        )
+
+    @property
+    def needs_references(self) -> bool:
+        """Whether a cue reads first-frame reference data (set by :meth:`with_references`)."""
+        return any(c.spec.reference for c in self.cues)
+
+    def check_observation(self, obs: Observation) -> None:
+        """Raise a clear error if the observation lacks a field a cue needs, disagrees with the rig, or a cue
+        needs reference data that :meth:`with_references` has not set."""
+        for c, cue in enumerate(self.cues):
+            for field in cue.spec.requires:
+                if not obs.has(field):
+                    raise ValueError(f"cue {cue.name!r} needs observation field {field!r}, which is empty")
+            if cue.spec.reference and (not self.references or self.references[c] is None):
+                raise ValueError(
+                    f"cue {cue.name!r} needs reference data: call with_references(x0, obs0) first"
+                )
+        if obs.num_views != self.rig.num_views:
+            raise ValueError(f"observation has {obs.num_views} views, the calibration {self.rig.num_views}")
+
+    # -----------------------------------------------------------------------------------------------------------
+    # Geometry
+
+    def pose_stage(self, x: jnp.ndarray) -> dict:
+        """The small per-particle part of the geometry of ``x (D,)``: segment poses ``R, t``, and as the cues need
+        them the joints ``(J, 3)``, the world primitives and each view's occluding contours (cone generators as lines,
+        ellipsoid outlines as ellipses; sampled by :meth:`_contour_points`).
+
+        :meth:`batch` runs this over all particles at once (many small operations: better amortised over a large
+        batch) and :meth:`geometry_from_pose` in chunks (long per-point arrays: better kept in cache).
+        """
+        needs = self._needs()
+        R, t = body.segment_poses(self.model, x)
+        out = {"R": R, "t": t}
+        if "facing" in needs:
+            Cc = camera.camera_centres(self.rig).astype(R.dtype)  # (V, 3)
+            d = Cc[:, None, :] - t[None]  # (V, S, 3)
+            out["camera_local"] = jnp.stack(
+                [
+                    R[None, :, 0, i] * d[..., 0] + R[None, :, 1, i] * d[..., 1] + R[None, :, 2, i] * d[..., 2]
+                    for i in range(3)
+                ],
+                -1,
+            )
+        if needs & {"joints", "joints_uv"}:
+            out["joints"] = kinematics.transform_points(
+                R, t, self.model.joint_point, self.model.joint_segment
+            )
+        if needs & {"contour", "contour_index", "primitives"}:
+            out["primitives"] = prims = flesh.world_primitives(self.model, R, t)
+        if needs & {"contour", "contour_index"}:
+            # the contours as lines and ellipses per view (a few vectors per primitive); their points are sampled
+            # in geometry_from_pose, next to the projection that reads them
+            Cc = camera.camera_centres(self.rig).astype(R.dtype)
+            if prims.num_cones:
+                out["contour_lines"] = jax.vmap(
+                    lambda c: flesh.cone_contour_lines(prims.cone_a, prims.cone_b, prims.r_a, prims.r_b, c)
+                )(Cc)  # (V, C, 2, 3) twice
+            if prims.num_ellipsoids:
+                out["contour_ellipses"] = jax.vmap(
+                    lambda c: flesh.ellipsoid_contour_frames(prims.ell_centre, prims.ell_axes, c)
+                )(Cc)  # (V, E, 3) three times
+        return out
+
+    def _contour_points(self, pose: dict) -> jnp.ndarray:
+        """``(V, Q, 3)`` occluding-contour points of each view: ``contour_points`` on each cone generator, then
+        twice as many on each ellipsoid's outline (:func:`jaxmocap.geometry.flesh.cone_contours`,
+        :func:`jaxmocap.geometry.flesh.ellipsoid_contours`), from the lines and ellipses of :meth:`pose_stage`."""
+        V, k = self.rig.num_views, self.contour_points
+        pts = []
+        if "contour_lines" in pose:
+            pts.append(flesh.contour_line_points(*pose["contour_lines"], k).reshape(V, -1, 3))
+        if "contour_ellipses" in pose:
+            pts.append(flesh.ellipse_points(*pose["contour_ellipses"], 2 * k).reshape(V, -1, 3))
+        return jnp.concatenate(pts, axis=1) if len(pts) > 1 else pts[0]
+
+    def geometry_from_pose(self, pose: dict, image_shape: tuple[int, int] | None = None) -> cues.Geometry:
+        """Projected geometry of one particle from its :meth:`pose_stage` (see :meth:`geometry`)."""
+        needs = self._needs()
+        V = self.rig.num_views
+        g = {}
+        if "joints" in pose:
+            g["joints"] = pose["joints"]
+            if "joints_uv" in needs:
+                g["joints_uv"] = camera.project(self.rig, pose["joints"])
+        if needs & {"surface", "surface_index", "facing"}:
+            g.update(self._surface_geometry(pose, image_shape, needs))
+        if "primitives" in pose:
+            g["primitives"] = pose["primitives"]
+        if needs & {"contour", "contour_index"}:
+            quv = camera.project_per_view(self.rig, self._contour_points(pose))
+            g["contour_uv"] = quv
+            if "contour_index" in needs and image_shape is not None:
+                g["contour_index"], g["contour_inside"] = maps.nearest_index(quv, (V,) + tuple(image_shape))
+        return cues.Geometry(**g)
+
+    def _surface_geometry(self, pose: dict, image_shape, needs) -> dict:
+        """The flesh-point fields of :class:`jaxmocap.likelihood.cues.Geometry` (world points, pixels, depth, facing, indices).
+
+        Points stored segment by segment (at most :data:`jaxmocap.geometry.kinematics.MAX_RUNS` runs) go run by run: the
+        camera-from-segment transform ``A_vs = R_v R_s``, ``b_vs = R_v t_s + t_v`` maps the run's local points to
+        camera coordinates (no world points in between, no per-point gather of transforms), every field of the run
+        is computed from them, and each field is concatenated over the runs at the end, so that XLA materialises
+        the final fields only (on its CPU backend a concatenation of intermediate coordinates was copied, and the
+        projection recomputed in every consumer). Other layouts project the world points.
+
+        Facing: ``n·(c_v − X) > 0`` in the segment frame, ``n_p·c_v,s(p) > n_p·p_p`` with ``c_v,s = R_sᵀ(c_v − t_s)``
+        the camera centre in segment ``s``'s frame (``camera_local`` of :meth:`pose_stage`), and in front of it.
+        """
+        R, t = pose["R"], pose["t"]
+        V = self.rig.num_views
+        n, p = self.surface.normal, self.surface.local
+
+        def dot3(a, b):  # a · b over the last axis, written out (broadcasting the leading axes)
+            return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+
+        npp = dot3(n, p)
+        facing = "facing" in needs
+        shape = (V,) + tuple(image_shape) if "surface_index" in needs and image_shape is not None else None
+
+        def fields(uv, z, nc, npp):
+            out = {"surface_uv": uv, "surface_depth": z}
+            if facing:
+                out["surface_facing"] = (nc > npp) & (z > 0)
+            if shape is not None:
+                out["surface_index"], out["surface_inside"] = maps.nearest_index(uv, shape)
+                if facing:
+                    out["surface_visible_index"] = maps.visible_index(
+                        out["surface_index"], out["surface_facing"] & out["surface_inside"], shape
+                    )
+            return out
+
+        cl = pose.get("camera_local")  # (V, S, 3)
+        X = kinematics.transform_points(R, t, p, self.surface.segment)  # world points (dropped when unused)
+        runs = kinematics.segment_runs(self.surface.segment)
+        if len(runs) <= kinematics.MAX_RUNS:
+            Rc = jnp.asarray(self.rig.R, R.dtype)
+            tc = jnp.asarray(self.rig.t, R.dtype)
+            # (sums of three products written out: XLA's CPU backend hands a reduction over 3 to a library)
+            A = sum(Rc[:, None, :, j, None] * R[None, :, None, j, :] for j in range(3))  # (V, S, 3, 3)
+            b = sum(Rc[:, None, :, j] * t[None, :, None, j] for j in range(3)) + tc[:, None]  # (V, S, 3)
+            parts = []
+            for start, stop, s in runs:
+                cam = kinematics.apply_by_runs(A, b, p[start:stop], [(0, stop - start, s)])
+                uv, z = camera.pixels_from_camera(self.rig, *cam)
+                nc = dot3(cl[:, s, None, :], n[start:stop]) if facing else None
+                parts.append(fields(uv, z, nc, npp[start:stop]))
+            out = {k: jnp.concatenate([q[k] for q in parts], axis=1) for k in parts[0]}
+        else:
+            uv, z = camera.project_with_depth(self.rig, X)
+            nc = dot3(cl[:, np.asarray(self.surface.segment, np.int32)], n) if facing else None
+            out = fields(uv, z, nc, npp)
+        out["surface"] = X
+        return out
+
+    def geometry(self, x: jnp.ndarray, image_shape: tuple[int, int] | None = None) -> cues.Geometry:
+        """Projected geometry of one particle ``x (D,)`` — only the parts the cues need.
+
+        ``image_shape``: ``(H, W)`` of the observation's maps, for the shared nearest-pixel indices (left out when
+        None). How the flesh-point fields are laid out for XLA's CPU backend: :meth:`_surface_geometry` and
+        :mod:`jaxmocap.likelihood.maps`.
+        """
+        return self.geometry_from_pose(self.pose_stage(x), image_shape)
+
+    # -----------------------------------------------------------------------------------------------------------
+    # Evaluation
+
+    def prepare(self, obs: Observation) -> tuple:
+        """Per-call work of each cue that depends on the observation only (``None`` for cues without it)."""
+        cache: dict = {}
+        out = []
+        for c, cue in enumerate(self.cues):
+            p = cue.spec.prepare
+            out.append(None if p is None else p(obs, self._context(c), cache))
+        return tuple(out)
+
+    def view_energies(self, x: jnp.ndarray, obs: Observation, aux: tuple | None = None) -> jnp.ndarray:
+        """``(C, V)`` weighted cue energies ``k_c w_v E_c,v`` of one particle (before the schedule); a view-free
+        cue has ``k_c E_c`` in column 0 and zeros elsewhere. ``aux``: :meth:`prepare` (computed here if None)."""
+        return self._energies_from_pose(self.pose_stage(x), obs, self.prepare(obs) if aux is None else aux)
+
+    def _energies_from_pose(self, pose: dict, obs: Observation, aux: tuple) -> jnp.ndarray:
+        g = self.geometry_from_pose(pose, obs.image_shape)
+        V = self.rig.num_views
+        rows = []
+        for c, cue in enumerate(self.cues):
+            e = cue.spec.energy(g, obs, self._context(c, aux[c]))
+            if cue.spec.per_view:
+                rows.append(cue.weight * self.view_weights * e)
+            else:
+                rows.append(jnp.zeros((V,), e.dtype).at[0].set(cue.weight * e))
+        return jnp.stack(rows)
+
+    def energies(self, x: jnp.ndarray, obs: Observation, aux: tuple | None = None) -> jnp.ndarray:
+        """``(C,)`` view-weighted cue energies ``k_c Σ_v w_v E_c,v`` of one particle (before the schedule)."""
+        return jnp.sum(self.view_energies(x, obs, aux), axis=-1)
+
+    def layer_lambda(self, layer=0) -> jnp.ndarray:
+        """``(C, V)`` λ of annealing layer ``layer``: an int (traced or static) or the
+        :class:`jaxmocap.filters.base.Layer` the annealed filters pass (its ``index`` is used)."""
+        layer = getattr(layer, "index", layer)
+        return self.schedule[jnp.clip(layer, 0, self.schedule.shape[0] - 1)]
+
+    def log_likelihood(
+        self, x: jnp.ndarray, obs: Observation, layer=0, aux: tuple | None = None
+    ) -> jnp.ndarray:
+        """Scalar ``log p_l(z | x)`` of one particle at annealing layer ``layer`` (see :meth:`layer_lambda`)."""
+        return -jnp.sum(self.layer_lambda(layer) * self.view_energies(x, obs, aux))
+
+    def batch(self, X: jnp.ndarray, obs: Observation, layer=0) -> jnp.ndarray:
+        """``(N,)`` log-likelihoods of particles ``X (N, D)``; non-finite values become −inf.
+
+        The observation-only work is done once; particles go through in chunks of ``chunk_size`` (padded with
+        copies of the first particle, whose results are dropped).
+        """
+        aux = self.prepare(obs)
+        lam = self.layer_lambda(layer)
+        N, D = X.shape
+        c = self.chunk_size
+        n = 1 if c <= 0 or N <= c else -(-N // c)
+        if n > 1 and n * c > N:
+            X = jnp.concatenate([X, jnp.broadcast_to(X[:1], (n * c - N, D))])
+        pose = jax.vmap(self.pose_stage)(X)
+        f = jax.vmap(lambda p: -jnp.sum(lam * self._energies_from_pose(p, obs, aux)))
+        if n == 1:
+            ll = f(pose)
+        else:
+            chunks = jax.tree_util.tree_map(lambda a: a.reshape((n, c) + a.shape[1:]), pose)
+            ll = jax.lax.map(f, chunks).reshape(-1)[:N]
+        return jnp.where(jnp.isfinite(ll), ll, -jnp.inf)
+
+    # -----------------------------------------------------------------------------------------------------------
+    # Reference data (first frame)
+
+    def with_references(self, x0: jnp.ndarray, obs0: Observation) -> Likelihood:
+        """The same likelihood with the reference data of its colour cues taken from a first frame (host side).
+
+        ``x0 (D,)``: the pose in that frame (ground truth or initialisation); ``obs0``: its observation (with
+        ``rgb``). ``colour_histogram``: per view and ROI segment, the ROI mask is the model rendered at ``x0``
+        (:func:`jaxmocap.synth.render.render_view`, visible pixels of the segment's primitive) and the reference is
+        :func:`jaxmocap.features.colour.roi_histograms` of the frame's colours over it (``(V, R, B)``; with
+        ``soft=True`` the same pixels binned with the cue's triangular kernel).
+        ``colour_template``: the colour at each surface sample that faces camera ``v`` at ``x0`` and lies inside
+        the image (and on the foreground when the observation has one): ``(T (3, V, P), valid (V, P))``.
+        """
+        from jaxmocap.features.colour import roi_histograms
+        from jaxmocap.synth import render
+
+        refs = list(self.references) if self.references else [None] * len(self.cues)
+        x0 = jnp.asarray(x0, self.model.offset.dtype)
+        V = self.rig.num_views
+        H, W = obs0.image_shape
+        for c, cue in enumerate(self.cues):
+            kind = cue.spec.reference
+            if kind is None:
+                continue
+            if not obs0.has("rgb"):
+                raise ValueError(f"cue {cue.name!r} needs the first frame's rgb map for its reference")
+            rgb8 = np.asarray(
+                jnp.round(jnp.clip(obs0.rgb.astype(jnp.float32) * cues._unit_scale(obs0.rgb), 0, 1) * 255)
+            )
+            rgb8 = rgb8.astype(np.uint8)
+            ctx = self._context(c)
+            if kind == "histogram":
+                p = cue.param_dict
+                segs = cues._segment_ids(ctx, p.get("rois"), "fleshed")
+                # the ROI masks are rendered in float32 whatever the model's dtype (a reference, not differentiated)
+                prims = jax.tree_util.tree_map(
+                    lambda a: jnp.asarray(a, jnp.float32), render.primitives_from_model(self.model, x0)
+                )
+                cam = [np.asarray(a, np.float32) for a in (self.rig.K, self.rig.dist, self.rig.R, self.rig.t)]
+                label_of = {
+                    s: i
+                    for i, s in enumerate(
+                        flesh.cone_segments(self.model) + flesh.ellipsoid_segments(self.model)
+                    )
+                }
+                hists = []
+                for v in range(V):
+                    lab = np.asarray(
+                        render.render_view(
+                            cam[0][v], cam[1][v], cam[2][v], cam[3][v], (W, H), prims, normals=False
+                        ).label
+                    )
+                    masks = [lab == label_of[s] for s in segs]
+                    bins = int(p.get("bins", 4))
+                    if p.get("soft", False):  # the same triangular-kernel binning as the cue
+                        rows = []
+                        for m in masks:
+                            px = jnp.asarray(rgb8[v][m], jnp.float32) / 255.0
+                            h = jnp.sum(
+                                cues._soft_bin_weights(tuple(px[:, i] for i in range(3)), bins), axis=0
+                            )
+                            rows.append(np.asarray(h) / max(float(jnp.sum(h)), 1e-12))
+                        hists.append(np.stack(rows))
+                    else:
+                        bgr = np.ascontiguousarray(rgb8[v, ..., ::-1])
+                        hists.append(roi_histograms(bgr, masks, bins=bins, space=p.get("space", "rgb")))
+                refs[c] = jnp.asarray(np.stack(hists), self.model.offset.dtype)
+            elif kind == "template":
+                # the colours are read exactly as the cue reads them (nearest 8-bit colour, or bilinear), so that
+                # the energy at (x0, obs0) is 0
+                g0 = self.geometry(x0, (H, W))
+                ctx = self._context(c, cues._prepare_colour(obs0, ctx, {}))
+                rgb, inside = cues._surface_rgb(obs0, g0, ctx)
+                T = jnp.stack(rgb)  # (3, V, P)
+                valid = g0.surface_facing & inside
+                if obs0.has("foreground"):
+                    fg = maps.gather(obs0.foreground, g0.surface_index, cues._unit_scale(obs0.foreground))
+                    valid = valid & (fg >= 0.5)
+                refs[c] = (T.astype(self.model.offset.dtype), valid)
+        return dataclasses.replace(self, references=tuple(refs))
+
+
+jax.tree_util.register_dataclass(
+    Likelihood,
+    data_fields=["model", "rig", "surface", "view_weights", "schedule", "references"],
+    meta_fields=["cues", "contour_points", "chunk_size"],
+)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Schedules (feature-based annealing)
+
+#: cues that describe the silhouette coarsely and are smooth over large pose changes (used in early layers)
+COARSE_CUES = frozenset(
+    {
+        "foreground",
+        "silhouette_divergence",
+        "depth",
+        "blobs3d",
+        "keypoints",
+        "ground",
+        "wristband",
+        "skin",
+        "head_skin",
+        "colour_histogram",
+        "homogeneous_colour",
+    }
+)
+#: cues that localise precisely but have narrow basins (weighted up in later layers)
+FINE_CUES = frozenset({"edges", "edge_distance", "edge_fraction", "colour_template"})
+
+
+def schedule_preset(name: str, cue_names: Sequence[str], num_layers: int) -> np.ndarray:
+    """λ_c(l) tables, ``(L, C)``, for the annealing variants compared in López Méndez ch. 6–7.
+
+    * ``apf`` — every cue with λ = 1 in every layer (the standard APF: the layers differ only by β).
+    * ``m-apf`` — the same cue weights; the filter varies the survival-rate target per layer (see
+      :mod:`jaxmocap.filters.apf`); listed so every variant has a schedule.
+    * ``fbapf`` — feature-based annealing: coarse cues (:data:`COARSE_CUES`: silhouette, depth, detections,
+      skin, colour distributions) at full weight from the first layer; fine cues (:data:`FINE_CUES`: edges,
+      per-point colour) enter linearly, ``λ = l / (L − 1)``, reaching 1 in the last layer.
+    * ``fbapf2`` — coarse cues fade out as the fine cues fade in (``1 − l/(L−1)`` vs ``l/(L−1)``), never below 0.25.
+    * ``fbapf3`` — two stages: coarse cues only in the first half of the layers, all cues in the second half.
+    * ``li-kulic`` — λ = ln 100 for every cue (their ``w = A^(−d)``, A = 100, eq. 4: the product of the cue weights
+      is ``exp(−ln A Σ_c d_c)``).
+
+    Priors (``interpenetration``) keep λ = 1 in every variant. These tables are this project's reading of the
+    thesis' schedules (eq. 6.5–6.7): coarse-to-fine cue weighting across layers. Per-view tables are these
+    broadcast over views, or any ``(L, C, V)`` array given to :meth:`Likelihood.create`.
+    """
+    L, C = num_layers, len(cue_names)
+    ramp = np.linspace(0.0, 1.0, L) if L > 1 else np.ones(1)
+    lam = np.ones((L, C), np.float64)
+    known = ("apf", "m-apf", "fbapf", "fbapf2", "fbapf3", "li-kulic")
+    if name not in known:
+        raise ValueError(f"unknown schedule {name!r}; choose {', '.join(known)}")
+    for c, n in enumerate(cue_names):
+        fine = n in FINE_CUES
+        coarse = n in COARSE_CUES
+        if name == "li-kulic":
+            lam[:, c] = math.log(LI_KULIC_BASE)
+        elif name == "fbapf":
+            if fine:
+                lam[:, c] = ramp
+        elif name == "fbapf2":
+            if fine:
+                lam[:, c] = ramp
+            elif coarse:
+                lam[:, c] = np.maximum(1.0 - ramp, 0.25)
+        elif name == "fbapf3":
+            if fine:
+                lam[:, c] = (np.arange(L) >= L // 2).astype(float) if L > 1 else 1.0
+    return lam.astype(np.float32)

@@ -1,0 +1,524 @@
+"""PARSEC bodytrack's image likelihood (``../shared/data/parsec/FORMAT.md`` §6.4) as a pure JAX function of one
+particle, and its fast batched form.
+
+For a state ``x`` the 10 cylinders (:func:`jaxmocap.parsec.model.cylinder_poses`) are projected into every camera
+(:func:`jaxmocap.parsec.model.cylinder_corners`, corners P0..P3) and sampled in two images per camera:
+
+* **edge term** on the edge map ``E`` (:func:`jaxmocap.parsec.model.edge_map`): along the two long sides P0→P1 and
+  P2→P3, each with ``n = max(int(|side|/5 + 0.5), 4)`` and ``n + 1`` samples at ``t = 0, d, 2d, …`` (``d = 1/n``,
+  ``t`` accumulated in float32 as bodytrack does), each sample adds ``(255 − E(x, y))²``;
+  ``ErrEdge = Σ (255 − E)² / 255² / (number of edge samples inside the images)``;
+* **inside term** on the binary foreground map ``FG``: ``n1 + 1`` rows ``e1 = P0 + t1 (P1 − P0)``, ``e2 = P3 +
+  t1 (P2 − P3)`` with ``n1 = max(int(|P1 − P0|/10 + 0.5), 4)``, and on each row ``n2`` samples ``e1 + t2 (e2 −
+  e1)``, ``t2 = 0 … (n2 − 1)/n2`` (the e2 end excluded), ``n2 = max(int(|mid(P0P1) − mid(P3P2)|/10 + 0.5), 4)``;
+  ``ErrInside = #(FG = 0) / (number of inside samples inside the images)``;
+* ``log L = −(ErrEdge + ErrInside)``, equal weights, summed over all cameras and parts before the divisions.
+
+A sample at ``(xf, yf)`` reads pixel ``(int(xf + 0.5), int(yf + 0.5))`` with C's truncation toward zero (so
+``xf`` in (−1.5, −0.5) reads column 0) and counts only inside the image. The sample positions are computed in
+float32 in bodytrack's operation order whatever the dtype of the state, so that pixel lookups match the C++.
+A state whose cylinders intersect (bodytrack's sphere test on the part pairs (6, 0), (8, 0), (2, 4),
+:func:`geometry_valid`) gets ``−1e10`` and ``valid = False``; so does a state with no sample inside any image
+(bodytrack divides by zero there).
+
+**Static shapes.** The number of samples of a cylinder depends on its projected size, so it varies from particle
+to particle. Each group of parts is sampled by a ``lax.while_loop`` that takes a fixed number of samples per
+lane (camera × part × side) and iteration, with masks for the samples past a lane's count; the loop runs as long
+as the largest lane of the batch needs, so every shape is static and nothing is padded to a worst case. The
+counts are bounded by the image size, so the loop length is too: a side is sampled with at most ``n = int(D/5 +
+0.5)`` (D the image diagonal; 160 for 640×480), the inside grid with at most ``int(D/10 + 0.5)`` rows and
+columns (80). A cylinder whose projected side is longer than the image diagonal cannot lie in the image; only for
+such a cylinder (an implausible particle) is the sampling sparser than bodytrack's.
+
+**Speed.** :func:`log_likelihood_batch` evaluates particles ``(N, 31)`` with the particle axis last in every
+intermediate array, where XLA on CPU vectorises the per-sample arithmetic (with ``vmap``'s leading batch axis it
+does not: several times slower). Inside a loop iteration every sample is a separate elementwise step accumulating
+into one packed integer counter per lane (no reduction ops, which XLA on CPU materialises), the index arithmetic
+is kept apart from the gathers by an optimisation barrier, and gathers use ``mode="fill"``. See
+``benchmarks/bench_parsec.py``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxmocap.parsec import model as parsec
+from jaxmocap.parsec.model import BodyShape, Cameras
+
+__all__ = [
+    "Config",
+    "Observation",
+    "Terms",
+    "observation",
+    "geometry_valid",
+    "corners",
+    "terms_from_corners",
+    "likelihood_terms",
+    "log_likelihood",
+    "log_likelihood_batch",
+    "make_loglik_batch",
+    "INVALID",
+]
+
+#: Log-likelihood of an invalid state (bodytrack's value).
+INVALID = -1e10
+
+#: Part pairs tested for intersection (left forearm / torso, right forearm / torso, left shin / right shin).
+INTERSECTION_PAIRS: tuple[tuple[int, int], ...] = ((6, 0), (8, 0), (2, 4))
+
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+    """Static settings of the likelihood (hashable).
+
+    Attributes:
+      image_size: ``(W, H)`` of every camera image.
+      edge_step, inside_hstep, inside_vstep: sampling steps in pixels (bodytrack: 5, 10, 10).
+      chunk: edge samples per lane taken by one iteration of the edge loop.
+      groups: parts sampled together by one loop (similar projected sizes keep the masked work small).
+      inside_cols: per group, the samples of a row taken as one block (a row of ``n2`` samples takes
+        ``ceil(n2 / inside_cols)`` blocks; bodytrack's rows have at least 4, the torso's about 6 here).
+      inside_rows: blocks per lane taken by one iteration of the inside loop.
+
+    Groups of the same size and ``inside_cols`` share one compiled loop, scanned over them.
+    """
+
+    image_size: tuple[int, int] = (640, 480)
+    edge_step: float = 5.0
+    inside_hstep: float = 10.0
+    inside_vstep: float = 10.0
+    chunk: int = 8
+    groups: tuple[tuple[int, ...], ...] = ((0,), (9,), (1, 3), (2, 4), (5, 7), (6, 8))
+    inside_cols: tuple[int, ...] = (6, 6, 4, 4, 4, 4)
+    inside_rows: int = 2
+
+    def __post_init__(self):
+        parts = sorted(p for g in self.groups for p in g)
+        if parts != list(range(parsec.NUM_PARTS)):
+            raise ValueError("groups must list every part 0..9 exactly once")
+        if len(self.inside_cols) != len(self.groups):
+            raise ValueError("inside_cols needs one entry per group")
+        if min(self.chunk, self.inside_rows, *self.inside_cols) < 1:
+            raise ValueError("chunk sizes must be positive")
+        if (self.max_rows_n + 1) * self.max_cols_n >= 65536:
+            raise ValueError("image too large for the inside sample counters; use larger inside steps")
+
+    @property
+    def diagonal(self) -> float:
+        return math.hypot(*self.image_size)
+
+    @property
+    def max_edge_n(self) -> int:
+        """Largest ``n`` of a side (``n + 1`` samples): a side as long as the image diagonal."""
+        return int(self.diagonal / self.edge_step + 0.5)
+
+    @property
+    def max_rows_n(self) -> int:
+        return int(self.diagonal / self.inside_vstep + 0.5)
+
+    @property
+    def max_cols_n(self) -> int:
+        return int(self.diagonal / self.inside_hstep + 0.5)
+
+
+class Observation(NamedTuple):
+    """One frame: ``edge (V, H, W)`` edge maps (0..255; other dtypes than uint8 are truncated to uint8 per call)
+    and ``fg (V, H, W)`` foreground maps (non-zero = foreground). A pytree; a new frame with the same shapes does
+    not recompile."""
+
+    edge: jnp.ndarray
+    fg: jnp.ndarray
+
+
+def observation(edge_maps, fg_maps) -> Observation:
+    """Stack per-camera maps into an :class:`Observation` of uint8 device arrays."""
+    e = np.asarray(edge_maps)
+    f = np.asarray(fg_maps)
+    if e.shape != f.shape or e.ndim != 3:
+        raise ValueError(f"edge and foreground maps must both be (V, H, W), got {e.shape} and {f.shape}")
+    return Observation(jnp.asarray(e.astype(np.uint8)), jnp.asarray((f != 0).astype(np.uint8)))
+
+
+class Terms(NamedTuple):
+    """Per-particle result: ``loglik``, ``edge_error``, ``inside_error``, ``valid`` and the in-image sample
+    counts ``edge_samples``, ``inside_samples``."""
+
+    loglik: jnp.ndarray
+    edge_error: jnp.ndarray
+    inside_error: jnp.ndarray
+    valid: jnp.ndarray
+    edge_samples: jnp.ndarray
+    inside_samples: jnp.ndarray
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Geometry
+
+
+def _sphere_count(length, radius_max):
+    return jnp.minimum(jnp.floor(jnp.abs(length / radius_max / 2.0) + 0.5), 20.0)
+
+
+def _static_sphere_counts(shape: BodyShape) -> dict[int, int] | None:
+    """Sphere counts of the tested parts when the shape is concrete (not traced), else ``None``."""
+    try:
+        limbs = np.asarray(shape.limbs, dtype=np.float64)
+        length = np.asarray(
+            parsec.cylinder_lengths(BodyShape(np.asarray(shape.limbs), np.asarray(shape.lengths)))
+        )
+    except (jax.errors.ConcretizationTypeError, jax.errors.TracerArrayConversionError):
+        return None
+    parts = {p for pair in INTERSECTION_PAIRS for p in pair}
+    out = {}
+    for i in parts:
+        out[i] = int(min(math.floor(abs(length[i] / max(limbs[i, 0], limbs[i, 1]) / 2.0) + 0.5), 20))
+    return out
+
+
+def _valid_from_frames(shape: BodyShape, A, t) -> jnp.ndarray:
+    """:func:`geometry_valid` from scaled frames (``A[i][j]``, ``t[i]`` of shape ``(10, *B)``) → ``B`` bools."""
+    dt = t[0].dtype
+    nb = t[0].ndim - 1
+    limbs = jnp.asarray(shape.limbs, dt)
+    bottom, top = limbs[:, 0], limbs[:, 1]
+    length = parsec.cylinder_lengths(shape).astype(dt)
+    static = _static_sphere_counts(shape)
+
+    def spheres(i):
+        """Centres (3 arrays ``(K, *B)``), radii and mask ``(K, *1)`` of the spheres of part ``i`` (traced
+        shape: 21 spheres, masked)."""
+        k = _sphere_count(length[i], jnp.maximum(bottom[i], top[i]))
+        idx = jnp.arange(21, dtype=dt)
+        alpha = parsec._trail(idx * (1.0 / jnp.maximum(k, 1.0)), nb)
+        mask = parsec._trail((idx <= k) & (k > 0), nb)
+        c = [t[j][i][None] + alpha * (A[j][2][i] * length[i])[None] for j in range(3)]
+        dr = top[i] - bottom[i]
+        return c, (bottom[i] + alpha * dr) / jnp.sqrt(1.0 + (dr / length[i]) ** 2), mask
+
+    def static_spheres(i, k):
+        """Per sphere: centre (3 ``B``-shaped arrays) and radius, for the static count ``k``."""
+        dr = top[i] - bottom[i]
+        scaling = jnp.sqrt(1.0 + (dr / length[i]) ** 2)
+        axis = [A[j][2][i] * length[i] for j in range(3)]
+        delta = 1.0 / jnp.asarray(k, dt)
+        out = []
+        for q in range(k + 1):
+            alpha = q * delta
+            out.append(([t[j][i] + alpha * axis[j] for j in range(3)], (bottom[i] + alpha * dr) / scaling))
+        return out
+
+    ok = jnp.ones(t[0].shape[1:], bool)
+    for a, b in INTERSECTION_PAIRS:
+        if static is not None:
+            if static[a] == 0 or static[b] == 0:  # bodytrack's 0·∞ makes NaN centres: never intersecting
+                continue
+            for ca, ra in static_spheres(a, static[a]):
+                for cb, rb in static_spheres(b, static[b]):
+                    d = [ca[q] - cb[q] for q in range(3)]
+                    rab = ra + rb
+                    ok = ok & ~(rab * rab > d[0] * d[0] + d[1] * d[1] + d[2] * d[2])  # NaN: no hit
+        else:
+            (ca, ra, ma), (cb, rb, mb) = spheres(a), spheres(b)
+            d = [ca[q][:, None] - cb[q][None, :] for q in range(3)]
+            nrm = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
+            rab = ra[:, None] + rb[None, :]
+            hit = (rab * rab > nrm) & ma[:, None] & mb[None, :]
+            ok = ok & ~jnp.any(hit, axis=(0, 1))
+    return ok
+
+
+def geometry_valid(shape: BodyShape, poses: jnp.ndarray) -> jnp.ndarray:
+    """bodytrack's ``BodyGeometry::Valid`` (§6.2) for cylinder poses ``(10, 3, 4)``: scalar bool.
+
+    Each cylinder of a tested pair is approximated by ``k + 1`` spheres, ``k = min(int(|len/max(b, t)|/2 +
+    0.5), 20)``, centred at ``o0 + α (o1 − o0)`` (``α = i/k``, ``o0, o1`` the axis ends) with radius ``(b + α (t −
+    b)) / sqrt(1 + ((t − b)/len)²)``; the pair intersects if two spheres overlap, ``(r_a + r_b)² > |c_a − c_b|²``.
+    A cylinder with ``k = 0`` never intersects (bodytrack's 0·∞ gives NaN centres there).
+    """
+    A = [[poses[:, i, j] for j in range(3)] for i in range(3)]
+    t = [poses[:, i, 3] for i in range(3)]
+    return _valid_from_frames(shape, A, t)
+
+
+def corners(shape: BodyShape, cams: Cameras, x: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """Cylinder poses ``(10, 3, 4)`` and projected corners ``(V, 10, 4, 2)`` of one state ``x (31,)`` (dtype of
+    ``x``)."""
+    x = jnp.asarray(x)
+    A, t = parsec._cylinder_frames(shape, x)
+    rows = [jnp.stack([A[i][0], A[i][1], A[i][2], t[i]], -1) for i in range(3)]
+    return jnp.stack(rows, 1), parsec._corners(shape, cams, A, t)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Sampling
+#
+# Written for XLA on CPU: inside a loop iteration every sample is a separate elementwise step (explicit adds
+# into the per-lane accumulators, no reduction ops, which XLA would materialise), gathers use ``mode="fill"``
+# (measured 2-3x faster there than the clamping modes), and the running parameters ``t`` are accumulated in
+# float32 exactly as bodytrack does.
+
+
+def _count(length: jnp.ndarray, step: float, cap: int) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """``n = max(int(length/step + 0.5), 4)`` capped, as float; and whether the length was finite."""
+    finite = jnp.isfinite(length)
+    n = jnp.floor(jnp.where(finite, length, 0.0) / step + 0.5)
+    n = jnp.clip(n, 4.0, float(cap))
+    return n, finite
+
+
+def _index(x, y, offset, W: int, H: int, active):
+    """Flat pixel index (int32) and counted mask of samples ``(x, y)`` (float32): ``int(x + 0.5)`` truncates
+    toward 0, so a sample counts iff ``−1 < x + 0.5 < W`` and ``−1 < y + 0.5 < H``."""
+    xs = x + 0.5
+    ys = y + 0.5
+    m = active & (xs > -1.0) & (xs < W) & (ys > -1.0) & (ys < H)
+    idx = offset + jnp.floor(jnp.maximum(ys, 0.0)) * W + jnp.floor(jnp.maximum(xs, 0.0))
+    return jnp.where(m, idx, 0.0).astype(jnp.int32), m
+
+
+def _gather(flat, idx_masks):
+    """Pixel values at the indices of ``[(idx, mask), ...]``. The optimisation barrier keeps the index arithmetic
+    in its own (vectorised) loop, apart from the gathers (measured ~1.4× faster on CPU)."""
+    idx_masks = jax.lax.optimization_barrier(idx_masks)
+    return [(jnp.take(flat, i, mode="fill"), m) for i, m in idx_masks]
+
+
+def _edge_group(uv, flat_edge, config: Config, W: int, H: int):
+    """Edge term of one part group: ``uv (V, g, 4, 2, *B)`` float32 → per-lane SSD and counts ``(V, g, 2, *B)``."""
+    V = uv.shape[0]
+    nb = uv.ndim - 4
+    p = jnp.stack([uv[:, :, 0], uv[:, :, 2]], 2)  # (V, g, 2 sides, 2 xy, *B): sides P0→P1 and P2→P3
+    q = jnp.stack([uv[:, :, 1], uv[:, :, 3]], 2)
+    px, py = p[:, :, :, 0], p[:, :, :, 1]
+    sx = q[:, :, :, 0] - px
+    sy = q[:, :, :, 1] - py
+    n, finite = _count(jnp.sqrt(sx * sx + sy * sy), config.edge_step, config.max_edge_n)
+    d = 1.0 / n
+    count = jnp.where(finite, n + 1.0, 0.0)
+    offset = jnp.broadcast_to(parsec._trail(jnp.arange(V, dtype=uv.dtype) * (W * H), nb + 2), px.shape)
+    offset = offset + jnp.zeros_like(px)  # a full array: no broadcast inside the loop
+    C = config.chunk
+
+    # one uint32 accumulator per lane, SSD in the high bits and the sample count in the low 8 bits, when a side
+    # has at most 255 samples (640×480: 161); two int32 accumulators otherwise
+    packed = config.max_edge_n + 1 <= 255
+
+    def body_fn(carry):
+        k, t, acc = carry
+        samples = []
+        for j in range(C):
+            samples.append(_index(px + t * sx, py + t * sy, offset, W, H, (k * C + j) < count))
+            t = t + d
+        for v, m in _gather(flat_edge, samples):
+            e = 255 - v.astype(jnp.int32)
+            if packed:
+                acc = acc + jnp.where(m, e * e * 256 + 1, 0).astype(jnp.uint32)
+            else:
+                acc = (acc[0] + jnp.where(m, e * e, 0), acc[1] + m.astype(jnp.int32))
+        return k + 1.0, t, acc
+
+    def cond_fn(carry):
+        return carry[0] * C < jnp.max(count)
+
+    zeros = jnp.zeros_like(px)
+    acc0 = jnp.zeros(px.shape, jnp.uint32) if packed else (jnp.zeros(px.shape, jnp.int32),) * 2
+    acc = jax.lax.while_loop(cond_fn, body_fn, (jnp.zeros((), uv.dtype), zeros, acc0))[2]
+    if packed:
+        return (acc >> 8).astype(uv.dtype), (acc & 255).astype(uv.dtype)
+    return acc[0].astype(uv.dtype), acc[1].astype(uv.dtype)
+
+
+def _inside_group(uv, flat_fg, config: Config, W: int, H: int, C2: int):
+    """Inside term of one part group: ``uv (V, g, 4, 2, *B)`` float32 → background and sample counts ``(V, g,
+    *B)``.
+
+    One loop iteration visits ``config.inside_rows`` (row, block) steps per lane; a block is ``C2`` consecutive
+    samples of a row (a row of ``n2`` samples takes ``ceil(n2 / C2)`` blocks).
+    """
+    V = uv.shape[0]
+    nb = uv.ndim - 4
+    p1x, p1y = uv[:, :, 0, 0], uv[:, :, 0, 1]
+    p2x, p2y = uv[:, :, 3, 0], uv[:, :, 3, 1]
+    s1x, s1y = uv[:, :, 1, 0] - p1x, uv[:, :, 1, 1] - p1y
+    s2x, s2y = uv[:, :, 2, 0] - p2x, uv[:, :, 2, 1] - p2y
+    mx = p1x + s1x / 2.0 - (p2x + s2x / 2.0)
+    my = p1y + s1y / 2.0 - (p2y + s2y / 2.0)
+    n1, f1 = _count(jnp.sqrt(s1x * s1x + s1y * s1y), config.inside_vstep, config.max_rows_n)
+    n2, f2 = _count(jnp.sqrt(mx * mx + my * my), config.inside_hstep, config.max_cols_n)
+    d1 = 1.0 / n1
+    d2 = 1.0 / n2
+    rows = jnp.where(f1 & f2, n1 + 1.0, 0.0)
+    blocks = jnp.ceil(n2 / C2)  # blocks per row
+    offset = jnp.broadcast_to(parsec._trail(jnp.arange(V, dtype=uv.dtype) * (W * H), nb + 1), p1x.shape)
+    offset = offset + jnp.zeros_like(p1x)  # a full array: no broadcast inside the loop
+
+    def body_fn(carry):
+        k, r, col, delta1, delta2, acc = carry
+        e1x = p1x + delta1 * s1x  # bodytrack's e1 and e2 − e1 of the current row
+        e1y = p1y + delta1 * s1y
+        ex = (p2x + delta1 * s2x) - e1x
+        ey = (p2y + delta1 * s2y) - e1y
+        for _ in range(config.inside_rows):
+            on_row = r < rows
+            left = n2 - col
+            samples = []
+            for j in range(C2):
+                samples.append(
+                    _index(e1x + delta2 * ex, e1y + delta2 * ey, offset, W, H, on_row & (j < left))
+                )
+                delta2 = delta2 + d2
+            for v, m in _gather(flat_fg, samples):
+                # one accumulator: background samples in the high 16 bits, all samples in the low 16 bits (a
+                # lane has at most (max_rows_n + 1)·max_cols_n < 65536 samples, checked by Config)
+                acc = acc + jnp.where(m, jnp.where(v == 0, 65537, 1), 0).astype(jnp.uint32)
+            # next block of this row, or the first block of the next row (bodytrack's two loops)
+            col = col + C2
+            wrap = col >= n2
+            col = jnp.where(wrap, 0.0, col)
+            r = jnp.where(wrap, r + 1.0, r)
+            delta2 = jnp.where(wrap, 0.0, delta2)
+            delta1 = jnp.where(wrap, delta1 + d1, delta1)
+            a1x = p1x + delta1 * s1x
+            a1y = p1y + delta1 * s1y
+            ex = jnp.where(wrap, (p2x + delta1 * s2x) - a1x, ex)
+            ey = jnp.where(wrap, (p2y + delta1 * s2y) - a1y, ey)
+            e1x = jnp.where(wrap, a1x, e1x)
+            e1y = jnp.where(wrap, a1y, e1y)
+        return k + 1.0, r, col, delta1, delta2, acc
+
+    def cond_fn(carry):
+        return carry[0] * config.inside_rows < jnp.max(rows * blocks)
+
+    zeros = jnp.zeros_like(p1x)
+    init = (jnp.zeros((), uv.dtype), zeros, zeros, zeros, zeros, jnp.zeros(p1x.shape, jnp.uint32))
+    acc = jax.lax.while_loop(cond_fn, body_fn, init)[-1]
+    return (acc >> 16).astype(uv.dtype), (acc & 65535).astype(uv.dtype)
+
+
+def _group_sums(uv: jnp.ndarray, obs: Observation, config: Config):
+    """Per part: edge SSD and counts ``(10, V, 2, *B)`` (two sides), background and inside counts ``(10, V,
+    *B)``. Groups of equal size and ``inside_cols`` run in one compiled loop per term, scanned over them."""
+    uv = jnp.asarray(uv, jnp.float32)
+    V, H, W = obs.edge.shape
+    if (W, H) != tuple(config.image_size):
+        raise ValueError(f"maps are {W}x{H} but config.image_size is {config.image_size}")
+    edge = obs.edge if obs.edge.dtype == jnp.uint8 else jnp.clip(obs.edge, 0, 255).astype(jnp.uint8)
+    flat_edge = edge.reshape(-1)
+    flat_fg = obs.fg.reshape(-1)
+    buckets: dict[tuple[int, int], list] = {}
+    for g, c2 in zip(config.groups, config.inside_cols, strict=True):
+        buckets.setdefault((len(g), c2), []).append(g)
+    per_part = [None] * parsec.NUM_PARTS
+    for (_, c2), groups in buckets.items():
+        stacked = jnp.stack([uv[:, np.asarray(g)] for g in groups])  # (G, V, g, 4, 2, *B)
+
+        def one(_, u, c2=c2):
+            return None, (
+                *_edge_group(u, flat_edge, config, W, H),
+                *_inside_group(u, flat_fg, config, W, H, c2),
+            )
+
+        _, (err, cnt, bg, ni) = jax.lax.scan(one, None, stacked)
+        for k, g in enumerate(groups):
+            for j, part in enumerate(g):
+                per_part[part] = (err[k, :, j], cnt[k, :, j], bg[k, :, j], ni[k, :, j])
+    return tuple(jnp.stack([p[i] for p in per_part]) for i in range(4))
+
+
+def terms_from_corners(uv: jnp.ndarray, obs: Observation, config: Config = Config()):
+    """Edge and inside sums for projected corners ``uv (V, 10, 4, 2)`` (cast to float32 first).
+
+    Returns ``(edge_ssd (V, 10), edge_count (V, 10), background (V, 10), inside_count (V, 10))``: per camera and
+    part the summed ``(255 − E)²`` over both sides, the number of in-image edge samples, the number of in-image
+    inside samples on background and the number of in-image inside samples.
+    """
+    err, cnt, bg, ni = _group_sums(uv, obs, config)  # (10, V, 2) and (10, V)
+    return (
+        (err[:, :, 0] + err[:, :, 1]).T,
+        (cnt[:, :, 0] + cnt[:, :, 1]).T,
+        bg.T,
+        ni.T,
+    )
+
+
+def _total(a: jnp.ndarray, nb: int) -> jnp.ndarray:
+    """Sum over the leading (lane) axes of ``a (..., *B)`` by explicit adds (no reduction op) → ``B``."""
+    flat = a.reshape((-1,) + a.shape[a.ndim - nb :])
+    acc = flat[0]
+    for i in range(1, flat.shape[0]):
+        acc = acc + flat[i]
+    return acc
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# The likelihood
+
+
+def _terms(shape: BodyShape, cams: Cameras, obs: Observation, x: jnp.ndarray, config: Config) -> Terms:
+    """:class:`Terms` of states ``x (31, *B)``, batch axes trailing (the hot path)."""
+    nb = x.ndim - 1
+    A, t = parsec._cylinder_frames(shape, x)
+    uv = parsec._corners(shape, cams, A, t)
+    edge_ssd, n_edge, background, n_inside = (_total(a, nb) for a in _group_sums(uv, obs, config))
+    edge_err = edge_ssd / (255.0 * 255.0) / jnp.maximum(n_edge, 1.0)
+    inside_err = background / jnp.maximum(n_inside, 1.0)
+    ll = -(edge_err + inside_err)
+    valid = _valid_from_frames(shape, A, t) & (n_edge > 0) & (n_inside > 0) & jnp.isfinite(ll)
+    ll = jnp.where(valid, ll.astype(x.dtype), jnp.asarray(INVALID, x.dtype))
+    return Terms(ll, edge_err, inside_err, valid, n_edge, n_inside)
+
+
+def likelihood_terms(
+    shape: BodyShape, cams: Cameras, obs: Observation, x: jnp.ndarray, config: Config = Config()
+) -> Terms:
+    """bodytrack's log-likelihood and its two error terms for one state ``x (31,)`` (mm, rad). Pure; vmap it, or
+    use :func:`log_likelihood_batch`, which computes the same values several times faster.
+
+    ``loglik = −(ErrEdge + ErrInside)`` (module docstring), or ``−1e10`` with ``valid = False`` for intersecting
+    cylinders or no in-image sample.
+    """
+    x = jnp.asarray(x)
+    if x.shape != (parsec.NUM_DOFS,):
+        raise ValueError(f"expected one state of shape (31,), got {x.shape}")
+    return _terms(shape, cams, obs, x, config)
+
+
+def log_likelihood(
+    shape: BodyShape, cams: Cameras, obs: Observation, x: jnp.ndarray, config: Config = Config()
+) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """``(loglik, valid)`` of one state; see :func:`likelihood_terms`."""
+    t = likelihood_terms(shape, cams, obs, x, config)
+    return t.loglik, t.valid
+
+
+def log_likelihood_batch(
+    shape: BodyShape, cams: Cameras, obs: Observation, X: jnp.ndarray, config: Config = Config()
+) -> Terms:
+    """:func:`likelihood_terms` of particles ``X (N, 31)`` → fields of shape ``(N,)``, the same values.
+
+    The particles are put on the last axis of every intermediate array, where XLA on CPU vectorises the
+    per-sample arithmetic (several times faster than ``vmap``, whose batch axis leads).
+    """
+    X = jnp.asarray(X)
+    if X.ndim != 2 or X.shape[1] != parsec.NUM_DOFS:
+        raise ValueError(f"expected particles of shape (N, 31), got {X.shape}")
+    return _terms(shape, cams, obs, X.T, config)
+
+
+def make_loglik_batch(shape: BodyShape, cams: Cameras, config: Config = Config()) -> Callable:
+    """``loglik_batch(X (N, 31), observation, layer=None) -> (N,)`` for the annealed filters
+    (:mod:`jaxmocap.filters`); invalid particles get ``−1e10`` as in bodytrack. The shape is kept concrete so
+    that the sphere test uses its static sphere counts."""
+    shape = BodyShape(np.asarray(shape.limbs), np.asarray(shape.lengths))
+
+    def loglik_batch(X, observation: Observation, layer=None):
+        return log_likelihood_batch(shape, cams, observation, X, config).loglik
+
+    return loglik_batch

@@ -1,0 +1,980 @@
+"""Synthetic multi-view sequences from real motion capture, with exact ground truth.
+
+The subject is the **mocap skeleton itself**, dressed (:func:`dress`): every bone of non-zero length becomes a
+truncated cone with spherical caps from its parent joint to its child joint (end sites included, so the head,
+fingers, thumbs and toes have their bones), with radii by body part (:data:`ROLE_RADII`), and the head becomes a
+spheroid centred on the middle of the head bone (polar length :data:`HEAD_LENGTH`, equatorial radius
+:data:`HEAD_RADIUS`). Clothing colours are per limb (:data:`ROLE_COLOURS`, the same on both sides); head, neck
+and hands are skin-coloured. A tracker's body model (the ``body.toml`` written with the sequence, the
+``full25`` preset with the subject's measured lengths and these radii) is an approximation of that scene.
+
+Every view is ray-cast exactly per pixel (:func:`jaxmocap.synth.render.render_view`), so depth, foreground mask and
+part labels agree with the calibration's projection model; then, on the host, Lambert shading under a world
+light, compositing over a real photograph or procedural clutter, an optional global illumination change, motion
+blur (the mean of renders at consecutive mocap frames), Gaussian sensor noise, and Li & Kulić's virtual depth
+sensor (front-surface depth, smoothed inside the silhouette, Gaussian noise of ``depth_noise`` metres, 16-bit
+millimetres; :func:`jaxmocap.synth.render.virtual_depth`).
+
+Rigs (:func:`preset_rig`), all placed relative to the clip: ``c`` is the centre of the horizontal range of the
+root over the rendered frames, ``f̂`` the subject's mean facing direction (``(left hip − right hip) × ẑ``,
+horizontal) and ``l̂ = ẑ × f̂`` its left:
+
+* ``stereo``: the IROS 2007 robot head, two parallel cameras 0.30 m apart at 1.3 m height in front of the
+  subject (``c + D f̂``), looking at ``c + 1.0 ẑ``; ``D`` is 3.0 m or more, so that every root position stays
+  at least 2.5 m away and the whole body stays in both images;
+* ``frontal-lateral``: the thesis set-up, one webcam in front (``c + D₁ f̂``) and one on the subject's left
+  (``c + D₂ l̂``), at 1.5 m, looking at ``c + 1.0 ẑ`` (a slight down-tilt), ``D`` from 3.0 m (2.0 m minimum),
+  mild radial distortion ``k₁ = −0.05``;
+* ``ring4``: four cameras at azimuths 45°, 135°, 225°, 315° from ``f̂`` on a 3.5 m radius circle at 2.5 m
+  height, looking at ``c + 0.9 ẑ`` (HumanEva / PARSEC-like);
+* a calibration file (:func:`jaxmocap.geometry.camera.load_calibration`): the cameras as calibrated; the clip is shifted
+  horizontally so that ``c`` lies below the point nearest to all optical axes (:func:`place_motion`; the shift
+  is in ``meta.json`` as ``world_offset``, and the ground truth is in the calibration's world).
+
+Focal length ``0.8·w`` (64° horizontal field of view), principal point at the image centre. Preset distances
+grow in 5 % steps until every joint and end site of every rendered frame projects at least 3 % of the width
+inside the image.
+
+Determinism: every random number comes from ``numpy.random.default_rng([seed, frame, view])`` (a stream per
+output image, independent of the order of work) or ``default_rng([seed, view])`` for a view's background, and
+every file is written byte-identically (:mod:`jaxmocap.io.sequence`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import os
+import pathlib
+import shutil
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from importlib import resources
+
+import cv2
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxmocap import __version__
+from jaxmocap.errors import MocapInputError
+from jaxmocap.geometry import body as body_mod
+from jaxmocap.geometry import camera
+from jaxmocap.io import sequence as seqio
+from jaxmocap.io.mocap import Motion, body_dimensions_from_motion, eval_joints, eval_mapping
+from jaxmocap.synth import render
+
+__all__ = [
+    "PRESETS",
+    "ROLE_RADII",
+    "ROLE_COLOURS",
+    "HEAD_LENGTH",
+    "HEAD_RADIUS",
+    "Dressing",
+    "demo_clip",
+    "load_motion",
+    "dress",
+    "dressing_points",
+    "scene_primitives",
+    "subject_frame",
+    "look_at",
+    "preset_rig",
+    "place_motion",
+    "background_image",
+    "parse_frames",
+    "parse_size",
+    "parse_clutter",
+    "view_images",
+    "body_dimensions",
+    "synthesize",
+    "CAPS",
+    "LIGHT",
+    "CMU_LICENCE",
+]
+
+PRESETS = ("stereo", "frontal-lateral", "ring4")
+
+#: Cone radii (metres) at the parent and child end of a bone, by body part.
+ROLE_RADII: dict[str, tuple[float, float]] = {
+    "torso": (0.135, 0.135),
+    "pelvis": (0.10, 0.09),
+    "clavicle": (0.06, 0.055),
+    "upper_arm": (0.05, 0.04),
+    "forearm": (0.04, 0.03),
+    "hand": (0.03, 0.025),
+    "finger": (0.022, 0.018),
+    "thumb": (0.015, 0.012),
+    "thigh": (0.08, 0.06),
+    "shin": (0.055, 0.04),
+    "foot": (0.04, 0.035),
+    "toe": (0.035, 0.03),
+    "neck": (0.05, 0.05),
+    "limb": (0.04, 0.04),
+}
+
+#: Clothing colours (RGB in [0, 1]) by body part, the same for the left and right limb; skin for bare parts.
+ROLE_COLOURS: dict[str, tuple[float, float, float]] = {
+    "torso": (0.20, 0.30, 0.65),
+    "clavicle": (0.20, 0.30, 0.65),
+    "upper_arm": (0.70, 0.15, 0.15),
+    "forearm": (0.85, 0.60, 0.10),
+    "pelvis": (0.25, 0.25, 0.28),
+    "thigh": (0.15, 0.55, 0.25),
+    "shin": (0.45, 0.20, 0.55),
+    "foot": (0.12, 0.12, 0.12),
+    "toe": (0.12, 0.12, 0.12),
+    "limb": (0.10, 0.55, 0.60),
+    "neck": render.SKIN,
+    "hand": render.SKIN,
+    "finger": render.SKIN,
+    "thumb": render.SKIN,
+    "head": render.SKIN,
+}
+
+#: Head spheroid: polar length (chin to crown) and equatorial radius, metres.
+HEAD_LENGTH = 0.22
+HEAD_RADIUS = 0.09
+
+#: Rendered cones have spherical caps (rounded limbs without gaps at bent joints).
+CAPS = "sphere"
+
+#: Light direction in the subject's frame ``(f̂, l̂, ẑ)`` (in front, to its left, above) and ambient term.
+LIGHT = (0.4, 0.3, 1.0)
+AMBIENT = 0.35
+
+#: Period (seconds) of the global illumination change.
+ILLUMINATION_PERIOD = 4.0
+
+# Body part of a bone from its (lower-case) name, first match wins.
+_ROLE_WORDS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("pelvis", ("hipjoint", "pelvis")),
+    ("torso", ("hips", "root", "back", "spine", "chest", "thorax", "abdomen", "torso")),
+    ("toe", ("toe",)),
+    ("foot", ("foot", "ankle")),
+    ("finger", ("finger", "index", "middle", "ring", "pinky")),
+    ("thumb", ("thumb",)),
+    ("hand", ("hand", "wrist", "palm")),
+    ("forearm", ("radius", "forearm", "elbow", "ulna")),
+    ("clavicle", ("clavicle", "collar")),
+    ("upper_arm", ("humerus", "shoulder", "arm")),
+    ("shin", ("tibia", "knee", "shin", "calf")),
+    ("thigh", ("femur", "upleg", "thigh", "hip")),
+    ("shin", ("leg",)),
+    ("neck", ("neck",)),
+    ("head", ("head",)),
+)
+
+_DEMO = ("02_01.amc", "02.asf")
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Motion input
+
+
+def demo_clip() -> tuple[pathlib.Path, pathlib.Path]:
+    """The bundled CMU clip (subject 2, trial 1: a walk; ASF/AMC, 120 fps): ``(amc path, asf path)``."""
+    base = resources.files("jaxmocap") / "data" / "mocap"
+    return pathlib.Path(str(base / _DEMO[0])), pathlib.Path(str(base / _DEMO[1]))
+
+
+def _find_asf(amc: pathlib.Path) -> pathlib.Path:
+    """The skeleton of a CMU ``SS_TT.amc``: ``SS.asf`` next to it, else the only ``.asf`` in its folder."""
+    guess = amc.with_name(amc.stem.split("_")[0] + ".asf")
+    if guess.is_file():
+        return guess
+    found = sorted(amc.parent.glob("*.asf"))
+    if len(found) == 1:
+        return found[0]
+    raise MocapInputError(amc, "cannot tell which .asf skeleton goes with this .amc motion: pass it (--asf)")
+
+
+def load_motion(
+    path: str | os.PathLike | Motion, asf: str | os.PathLike | None = None, scale: float | None = None
+) -> Motion:
+    """A :class:`~jaxmocap.io.mocap.Motion` from a ``.bvh`` file (``scale`` metres per unit, default the CMU
+    conversion's :data:`jaxmocap.io.bvh.CMU_BVH_SCALE`), an ``.amc`` file with its ``asf`` skeleton (found next
+    to it when not given; ``scale`` default from the ASF units) or ``"demo"`` (:func:`demo_clip`)."""
+    from jaxmocap.io import asfamc, bvh
+
+    if isinstance(path, Motion):
+        return path
+    if os.fspath(path) == "demo" and not os.path.isfile("demo"):
+        path, default_asf = demo_clip()
+        asf = default_asf if asf is None else asf
+    p = pathlib.Path(path)
+    if not p.is_file():
+        raise MocapInputError(p, "no such motion file")
+    ext = p.suffix.lower()
+    if ext == ".bvh":
+        return bvh.load_bvh(p, scale=bvh.CMU_BVH_SCALE if scale is None else float(scale))
+    if ext == ".amc":
+        skel = pathlib.Path(asf) if asf is not None else _find_asf(p)
+        return asfamc.load_asfamc(skel, p, scale=scale)
+    raise MocapInputError(p, f"unknown motion format {ext!r} (expected .bvh or .amc with an .asf)")
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Dressing the skeleton
+
+
+def _role(name: str) -> str:
+    low = name.lower()
+    for role, words in _ROLE_WORDS:
+        if any(w in low for w in words):
+            return role
+    return "limb"
+
+
+@dataclasses.dataclass(frozen=True)
+class Dressing:
+    """How a skeleton is dressed; static (hashable) except for the radii.
+
+    Points are the ``J`` joints, then the ``E`` end sites, then two head points (the ends of the head
+    spheroid's polar axis); ``parents`` has one entry per point (``−1`` for the root and the head points).
+    ``bones``: child point of each cone (label order), ``part_names`` / ``part_roles`` per label (cones, then
+    ``"head"``), ``radius_start``/``radius_end`` ``(C,)``, ``head_bone``: ``(head joint, its end site point)``.
+    """
+
+    parents: tuple[int, ...]
+    bones: tuple[int, ...]
+    part_names: tuple[str, ...]
+    part_roles: tuple[str, ...]
+    radius_start: tuple[float, ...]
+    radius_end: tuple[float, ...]
+    head_bone: tuple[int, int]
+    head_length: float = HEAD_LENGTH
+    head_radius: float = HEAD_RADIUS
+
+    @property
+    def num_cones(self) -> int:
+        return len(self.bones)
+
+    @property
+    def head_points(self) -> tuple[int, int]:
+        n = len(self.parents)
+        return (n - 2, n - 1)
+
+    def colours(self) -> np.ndarray:
+        """``(C + 1, 3)`` RGB in [0, 1] per label."""
+        return np.asarray([ROLE_COLOURS.get(r, ROLE_COLOURS["limb"]) for r in self.part_roles], np.float64)
+
+
+def dress(motion: Motion, head_length: float = HEAD_LENGTH, head_radius: float = HEAD_RADIUS) -> Dressing:
+    """Cones for every bone of ``motion`` (parent → child, end sites included) of non-zero rest length, bones
+    repeating another one's end points left out; the head bone (the one named ``head``) becomes the spheroid.
+
+    A bone is named after its parent joint (BVH and ASF name a bone after the joint that moves it), with
+    ``>child`` appended when the parent starts several bones; its body part comes from the name (and the child's
+    for bones leaving the torso towards the legs or arms).
+    """
+    from jaxmocap.io.mocap import rest_positions
+
+    X, E = rest_positions(motion)
+    names = list(motion.joint_names)
+    J = len(names)
+    child_names = names + [names[p] + "_end" for p in motion.end_parents]
+    parents = list(motion.parents) + list(motion.end_parents)
+    pts = np.concatenate([X, E], 0) if len(E) else X
+    mapping = eval_mapping(motion)
+    head_spec = mapping["head"]
+    if isinstance(head_spec, str):
+        raise ValueError(f"{motion.source}: the head joint needs an end site")
+    head_joint = motion.joint_index(head_spec[1])
+    head_end = J + motion.end_parents.index(head_joint)
+    kept, seen = [], []
+    for c in range(len(parents)):
+        p = parents[c]
+        if p < 0 or c == head_end or np.linalg.norm(pts[c] - pts[p]) <= 1e-6:
+            continue
+        ends = (pts[p], pts[c])
+        if any(np.allclose(ends, s, atol=1e-6) for s in seen):
+            continue
+        seen.append(ends)
+        kept.append(c)
+    n_children = {p: sum(parents[c] == p for c in kept) for p in range(J)}
+    bones, part_names, roles, ra, rb = [], [], [], [], []
+    for c in kept:
+        p = parents[c]
+        role = _role(names[p])
+        child_role = _role(child_names[c])
+        if role == "torso" and child_role in ("thigh", "pelvis"):
+            role = "pelvis"
+        elif role == "torso" and child_role in ("clavicle", "upper_arm"):
+            role = "clavicle"
+        elif role == "head":
+            role = "neck"
+        r0, r1 = ROLE_RADII.get(role, ROLE_RADII["limb"])
+        bones.append(c)
+        part_names.append(names[p] if n_children[p] <= 1 else f"{names[p]}>{child_names[c]}")
+        roles.append(role)
+        ra.append(r0)
+        rb.append(r1)
+    parents = parents + [-1, -1]
+    return Dressing(
+        parents=tuple(parents),
+        bones=tuple(bones),
+        part_names=tuple(part_names) + ("head",),
+        part_roles=tuple(roles) + ("head",),
+        radius_start=tuple(ra),
+        radius_end=tuple(rb),
+        head_bone=(head_joint, head_end),
+        head_length=float(head_length),
+        head_radius=float(head_radius),
+    )
+
+
+def dressing_points(motion: Motion, dressing: Dressing, frames: Sequence[int] | np.ndarray) -> np.ndarray:
+    """``(T, P, 3)`` points of :class:`Dressing` at the source frames ``frames``: joints, end sites, and the head
+    spheroid's axis ends ``m ± (head_length/2) â`` with ``m`` the middle of the head bone and ``â`` its
+    direction."""
+    idx = np.asarray(frames, dtype=np.int64)
+    ends = motion.end_positions if motion.end_positions is not None else np.zeros((motion.num_frames, 0, 3))
+    pts = np.concatenate([motion.positions[idx], ends[idx]], axis=1)
+    hj, he = dressing.head_bone
+    a, b = pts[:, hj], pts[:, he]
+    axis = b - a
+    axis = axis / np.maximum(np.linalg.norm(axis, axis=-1, keepdims=True), 1e-12)
+    mid = 0.5 * (a + b)
+    half = 0.5 * dressing.head_length
+    return np.concatenate([pts, (mid - half * axis)[:, None], (mid + half * axis)[:, None]], axis=1)
+
+
+@functools.partial(jax.jit, static_argnames=("dressing",))
+def _scene(points: jnp.ndarray, dressing: Dressing) -> render.Primitives:
+    return render.primitives_from_skeleton(
+        points,
+        dressing.parents,
+        jnp.asarray(dressing.radius_start, points.dtype),
+        jnp.asarray(dressing.radius_end, points.dtype),
+        bones=dressing.bones,
+        head=dressing.head_points,
+        head_radius=dressing.head_radius,
+    )
+
+
+def scene_primitives(points: np.ndarray, dressing: Dressing) -> render.Primitives:
+    """World :class:`jaxmocap.synth.render.Primitives` of one frame's points ``(P, 3)`` (float32): ``C`` cones in
+    :attr:`Dressing.bones` order, then the head spheroid (label ``C``)."""
+    return _scene(jnp.asarray(points, jnp.float32), dressing)
+
+
+def body_dimensions(motion: Motion, dressing: Dressing) -> dict[str, float]:
+    """``full25`` dimensions of the dressed subject: lengths measured on the skeleton
+    (:func:`jaxmocap.io.mocap.body_dimensions_from_motion`), the radii of the dressing, and the head of the
+    dressing (``head_length``; ``neck_length`` lowered so that the model's head centre stays the middle of the
+    head bone, the ground-truth ``head`` joint)."""
+    dims = body_dimensions_from_motion(motion)
+    bone_len = dims["head_length"]
+    dims["head_length"] = dressing.head_length
+    dims["head_radius"] = dressing.head_radius
+    dims["neck_length"] = max(0.0, dims["neck_length"] - 0.5 * (dressing.head_length - bone_len))
+    r = ROLE_RADII
+    dims.update(
+        torso_radius_bottom=r["torso"][0],
+        torso_radius_top=r["torso"][1],
+        upper_arm_radius_top=r["upper_arm"][0],
+        upper_arm_radius_bottom=r["upper_arm"][1],
+        forearm_radius_top=r["forearm"][0],
+        forearm_radius_bottom=r["forearm"][1],
+        thigh_radius_top=r["thigh"][0],
+        thigh_radius_bottom=r["thigh"][1],
+        shin_radius_top=r["shin"][0],
+        shin_radius_bottom=r["shin"][1],
+    )
+    return dims
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Rigs
+
+
+def subject_frame(joints: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(c, f̂, l̂)`` of evaluation joints ``(T, 15, 3)``: centre of the root's horizontal range (``z = 0``),
+    mean facing direction ``(left hip − right hip) × ẑ`` (horizontal, unit) and left ``ẑ × f̂``."""
+    ev = {n: i for i, n in enumerate(body_mod.EVAL_JOINTS)}
+    root = joints[:, ev["root"], :2]
+    c = np.array([*(0.5 * (root.min(0) + root.max(0))), 0.0])
+    hips = joints[:, ev["left_hip"]] - joints[:, ev["right_hip"]]
+    f = np.cross(hips, [0.0, 0.0, 1.0]).mean(0)
+    f[2] = 0.0
+    n = np.linalg.norm(f)
+    f = np.array([1.0, 0.0, 0.0]) if n < 1e-9 else f / n
+    return c, f, np.cross([0.0, 0.0, 1.0], f)
+
+
+def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
+    """World → camera ``(R, t)`` of a camera at ``eye`` looking at ``target``: camera ``z`` forward, ``x`` right
+    (``z × up``), ``y`` down, ``t = −R eye``."""
+    eye, target, up = (np.asarray(v, np.float64) for v in (eye, target, up))
+    z = target - eye
+    z = z / np.linalg.norm(z)
+    x = np.cross(z, up)
+    x = x / np.linalg.norm(x)
+    R = np.stack([x, np.cross(z, x), z])
+    return R, -R @ eye
+
+
+def _intrinsics(size: tuple[int, int], focal: float = 0.8) -> np.ndarray:
+    w, h = size
+    return np.array([[focal * w, 0.0, 0.5 * (w - 1)], [0.0, focal * w, 0.5 * (h - 1)], [0.0, 0.0, 1.0]])
+
+
+_project = jax.jit(camera.project_with_depth)
+
+
+def _visible(rig: camera.Rig, points: np.ndarray, margin: float) -> bool:
+    """Whether every point projects in front of every camera (``z > 0.3`` m) and at least ``margin · w`` pixels
+    inside its image. ``points (P, 3)`` with a fixed ``P`` (one compilation)."""
+    uv, z = _project(rig.to_jax(jnp.float32), jnp.asarray(points, jnp.float32))
+    uv, z = np.asarray(uv), np.asarray(z)
+    for v, (w, h) in enumerate(rig.image_size):
+        m = margin * w
+        u, vv = uv[v, :, 0], uv[v, :, 1]
+        if not (np.all(z[v] > 0.3) and np.all((u >= m) & (u <= w - 1 - m) & (vv >= m) & (vv <= h - 1 - m))):
+            return False
+    return True
+
+
+def preset_rig(
+    name: str,
+    points: np.ndarray,
+    joints: np.ndarray,
+    size: tuple[int, int] = (640, 480),
+    margin: float = 0.03,
+) -> camera.Rig:
+    """A rig preset (module docstring) placed around a clip.
+
+    Args:
+      name: ``"stereo"``, ``"frontal-lateral"`` or ``"ring4"``.
+      points: ``(T, P, 3)`` every point that must stay in view (joints and end sites of the rendered frames).
+      joints: ``(T, 15, 3)`` evaluation joints (for :func:`subject_frame` and the minimum distance).
+      size: ``(w, h)`` of every image.
+    """
+    c, f, left = subject_frame(joints)
+    up = np.array([0.0, 0.0, 1.0])
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    pts = pts[np.round(np.linspace(0, len(pts) - 1, 4096)).astype(np.int64)]
+    root_xy = joints[:, 0, :2]
+    K = _intrinsics(size)
+
+    def fit(make, d0: float, d_min: float) -> camera.Rig:
+        d = d0
+        for _ in range(60):
+            rig = make(d)
+            centres = np.asarray(camera.camera_centres(rig.to_jax(jnp.float32)))
+            near = min(float(np.min(np.linalg.norm(root_xy - cc[:2], axis=-1))) for cc in centres)
+            if near >= d_min and _visible(rig, pts, margin):
+                return rig
+            d *= 1.05
+        raise ValueError(f"the subject does not fit in the {name!r} rig even {d:.1f} m away")
+
+    def rig_of(names, eyes_R_t) -> camera.Rig:
+        Rs = [R for R, _ in eyes_R_t]
+        ts = [t for _, t in eyes_R_t]
+        V = len(names)
+        return camera.from_opencv(
+            np.stack([K] * V), np.zeros((V, 5)), np.stack(Rs), np.stack(ts), names, [size] * V
+        )
+
+    if name == "stereo":
+        target = c + 1.0 * up
+
+        def make(d):
+            head = c + d * f + 1.3 * up
+            R, _ = look_at(head, target)
+            return rig_of(("left", "right"), [(R, -R @ (head + s * 0.15 * R[0])) for s in (-1.0, 1.0)])
+
+        return fit(make, 3.0, 2.5)
+    if name == "frontal-lateral":
+        target = c + 1.0 * up
+        rigs = []
+        for cam, direction in (("frontal", f), ("lateral", left)):
+
+            def make(d, direction=direction, cam=cam):
+                return rig_of((cam,), [look_at(c + d * direction + 1.5 * up, target)])
+
+            rigs.append(fit(make, 3.0, 2.0))
+        dist = np.array([[-0.05, 0.0, 0.0, 0.0, 0.0]] * 2)
+        return camera.from_opencv(
+            np.stack([K, K]),
+            dist,
+            np.concatenate([r.R for r in rigs]),
+            np.concatenate([r.t for r in rigs]),
+            ("frontal", "lateral"),
+            [size, size],
+        )
+    if name == "ring4":
+        target = c + 0.9 * up
+        azimuths = np.deg2rad([45.0, 135.0, 225.0, 315.0])
+
+        def make(d):
+            eyes = [c + d * (math.cos(a) * f + math.sin(a) * left) + 2.5 * up for a in azimuths]
+            return rig_of(tuple(f"cam{i + 1}" for i in range(4)), [look_at(e, target) for e in eyes])
+
+        return fit(make, 3.5, 1.5)
+    raise ValueError(f"unknown rig preset {name!r}; choose one of {PRESETS} or a calibration file")
+
+
+def place_motion(
+    rig: camera.Rig, joints: np.ndarray, distance: float = 3.0, weight: float = 0.01
+) -> np.ndarray:
+    """Horizontal shift ``(3,)`` (``z = 0``) that puts the clip's centre (:func:`subject_frame`) below the point
+    ``p`` nearest to every optical axis of ``rig``, in the least-squares sense with a weak pull (``weight``) to
+    the points ``distance`` metres in front of each camera (which decides ``p`` when the axes are parallel):
+    ``p = (Σ (I − a aᵀ) + w I)⁻¹ Σ ((I − a aᵀ) C + w (C + distance · a))`` with ``C`` the centres, ``a`` the
+    axes."""
+    R = np.asarray(rig.R, np.float64)
+    centres = np.asarray(camera.camera_centres(rig.to_jax(jnp.float32)), np.float64)
+    A = np.zeros((3, 3))
+    b = np.zeros(3)
+    for v in range(R.shape[0]):
+        a = R[v, 2]
+        P = np.eye(3) - np.outer(a, a)
+        A += P + weight * np.eye(3)
+        b += P @ centres[v] + weight * (centres[v] + distance * a)
+    p = np.linalg.solve(A, b)
+    c, _, _ = subject_frame(joints)
+    return np.array([p[0] - c[0], p[1] - c[1], 0.0])
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Backgrounds
+
+
+def _photos() -> list[pathlib.Path]:
+    base = resources.files("jaxmocap") / "data" / "backgrounds"
+    return sorted(pathlib.Path(str(p)) for p in base.iterdir() if str(p).lower().endswith((".jpg", ".png")))
+
+
+def _fill(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Centre-crop ``image`` to the aspect of ``size`` and resize it (area interpolation) to ``size``."""
+    w, h = size
+    ih, iw = image.shape[:2]
+    if iw * h > ih * w:
+        cw = max(1, round(ih * w / h))
+        x0 = (iw - cw) // 2
+        image = image[:, x0 : x0 + cw]
+    else:
+        ch = max(1, round(iw * h / w))
+        y0 = (ih - ch) // 2
+        image = image[y0 : y0 + ch]
+    interp = cv2.INTER_AREA if image.shape[1] > w else cv2.INTER_LINEAR
+    return cv2.resize(image, (w, h), interpolation=interp)
+
+
+def _clutter(rng: np.random.Generator, image: np.ndarray, level: float) -> np.ndarray:
+    """Draw ``round(40·level)`` random striped rectangles and ellipses, their colours half-way between a random
+    colour and the image's mean colour (muted, like furniture and posters)."""
+    h, w = image.shape[:2]
+    out = image.copy()
+    mean = image.reshape(-1, 3).mean(0)
+    for _ in range(int(round(40 * level))):
+        colour = [int(c) for c in np.clip(0.5 * rng.integers(0, 256, 3) + 0.5 * mean, 0, 255)]
+        stripe = [int(np.clip(c + rng.integers(-50, 51), 0, 255)) for c in colour]
+        cx, cy = int(rng.integers(0, w)), int(rng.integers(0, h))
+        sx, sy = int(rng.integers(w // 40 + 1, w // 8 + 2)), int(rng.integers(h // 40 + 1, h // 6 + 2))
+        shape = np.zeros((h, w), np.uint8)
+        if rng.random() < 0.6:
+            cv2.rectangle(shape, (cx - sx, cy - sy), (cx + sx, cy + sy), 255, -1)
+        else:
+            cv2.ellipse(shape, (cx, cy), (sx, sy), float(rng.uniform(0, 180)), 0, 360, 255, -1)
+        layer = np.empty((h, w, 3), np.uint8)
+        layer[:] = colour
+        period = int(rng.integers(4, 24))
+        vertical = rng.random() < 0.5
+        for k in range(-max(h, w), max(h, w), period):
+            if vertical:
+                cv2.line(layer, (cx + k, 0), (cx + k, h), stripe, max(1, period // 3))
+            else:
+                cv2.line(layer, (0, cy + k), (w, cy + k), stripe, max(1, period // 3))
+        out[shape > 0] = layer[shape > 0]
+    return out
+
+
+def background_image(
+    kind: str, size: tuple[int, int], view: int, seed: int, clutter: float = 0.0
+) -> np.ndarray:
+    """``(h, w, 3)`` uint8 RGB background of view ``view``.
+
+    ``kind``: ``"photo"`` (the bundled photographs in turn, centre-cropped and resized), ``"plain"`` (a grey
+    wall above a darker floor) or an image file path; then procedural clutter of density ``clutter`` in [0, 1]
+    drawn from ``default_rng([seed, view])``.
+    """
+    w, h = size
+    if kind == "photo":
+        photos = _photos()
+        img = cv2.imread(os.fspath(photos[view % len(photos)]), cv2.IMREAD_COLOR)
+        base = _fill(img[..., ::-1], size)
+    elif kind == "plain":
+        rows = np.linspace(0.0, 1.0, h)[:, None, None]
+        wall = np.array([200.0, 196.0, 188.0])
+        floor = np.array([120.0, 116.0, 110.0])
+        base = np.where(rows < 0.55, wall - 30.0 * rows, floor + 20.0 * rows)
+        base = np.broadcast_to(base, (h, w, 3)).round().astype(np.uint8)
+    else:
+        img = cv2.imread(os.fspath(kind), cv2.IMREAD_COLOR)
+        if img is None:
+            raise MocapInputError(kind, "cannot read background image")
+        base = _fill(img[..., ::-1], size)
+    base = np.ascontiguousarray(base)
+    if clutter > 0:
+        base = _clutter(np.random.default_rng([int(seed), int(view)]), base, float(clutter))
+    return base
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Options
+
+
+def parse_frames(spec: str | tuple[int | None, int | None] | None, num_frames: int) -> tuple[int, int]:
+    """``"A:B"`` (either side may be empty; Python slice bounds, negative from the end) → ``(a, b)`` with
+    ``0 ≤ a < b ≤ num_frames``."""
+    if spec is None:
+        a, b = None, None
+    elif isinstance(spec, str):
+        parts = spec.split(":")
+        if len(parts) != 2:
+            raise ValueError(f"frames must be A:B, got {spec!r}")
+        try:
+            a, b = (int(p) if p.strip() else None for p in parts)
+        except ValueError:
+            raise ValueError(f"frames must be A:B with integers, got {spec!r}") from None
+    else:
+        a, b = spec
+    a, b, _ = slice(a, b).indices(num_frames)
+    if a >= b:
+        raise ValueError(f"frame range {spec!r} is empty for a clip of {num_frames} frames")
+    return a, b
+
+
+def parse_size(spec: str | tuple[int, int]) -> tuple[int, int]:
+    """``"WxH"`` → ``(w, h)``."""
+    if isinstance(spec, str):
+        try:
+            w, h = (int(s) for s in spec.lower().split("x"))
+        except ValueError:
+            raise ValueError(f"size must be WxH, got {spec!r}") from None
+    else:
+        w, h = (int(s) for s in spec)
+    if not (8 <= w <= 8192 and 8 <= h <= 8192):
+        raise ValueError(f"image size {w}x{h} out of range")
+    return w, h
+
+
+_CLUTTER_LEVELS = {"none": 0.0, "low": 0.3, "medium": 0.6, "high": 1.0}
+
+
+def parse_clutter(level: str | float) -> float:
+    """``none``/``low``/``medium``/``high`` or a number in [0, 1]."""
+    if isinstance(level, str) and level.lower() in _CLUTTER_LEVELS:
+        return _CLUTTER_LEVELS[level.lower()]
+    try:
+        x = float(level)
+    except ValueError:
+        raise ValueError(
+            f"clutter must be none, low, medium, high or a number in [0, 1], got {level!r}"
+        ) from None
+    if not 0.0 <= x <= 1.0:
+        raise ValueError(f"clutter must lie in [0, 1], got {x}")
+    return x
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# The generator
+
+
+@jax.jit
+def _form_image(normal, label, colours, light, background, illumination, ambient):
+    """Lambert shading composited over the background, under a global illumination factor (the formula of
+    :func:`jaxmocap.synth.render.shade` / :func:`jaxmocap.synth.render.composite`, fused in one XLA loop):
+    ``I = clip(a · colour[label] · (ambient + (1 − ambient) max(0, n·l̂)), 0, 1)`` on the body and
+    ``clip(a · background, 0, 1)`` elsewhere. ``normal (H, W, 3)`` camera frame, ``label (H, W)``, ``colours
+    (L, 3)``, ``light (3,)`` unit in the camera frame, ``background (H, W, 3)`` in [0, 1]. Returns float32
+    ``(H, W, 3)`` in [0, 1]."""
+    lam = jnp.maximum(normal[..., 0] * light[0] + normal[..., 1] * light[1] + normal[..., 2] * light[2], 0.0)
+    col = colours[jnp.maximum(label, 0)]
+    fg = illumination * col * (ambient + (1.0 - ambient) * lam)[..., None]
+    out = jnp.where((label >= 0)[..., None], fg, illumination * background)
+    return jnp.clip(out, 0.0, 1.0).astype(jnp.float32)
+
+
+def _quantise(image: np.ndarray) -> np.ndarray:
+    """Round a float image in 8-bit units to uint8 with saturation."""
+    return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+
+
+def view_images(
+    rng: np.random.Generator,
+    renders: Sequence[render.Render],
+    colours: jnp.ndarray,
+    light: jnp.ndarray,
+    background: jnp.ndarray,
+    illumination: float = 1.0,
+    noise: float = 0.01,
+    depth_smooth: float = 1.5,
+    depth_noise: float = 0.02,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The images of one view at one frame from its ray-cast renders.
+
+    Args:
+      rng: the image's generator (sensor noise, then depth noise).
+      renders: one :class:`jaxmocap.synth.render.Render` per motion-blur sub-frame, the frame's own first.
+      colours: ``(L, 3)`` label colours; light: ``(3,)`` unit light direction in the camera frame;
+      background: ``(H, W, 3)`` float in [0, 1]; illumination: global illumination factor.
+      noise: RGB noise standard deviation (1 = full scale); depth_smooth, depth_noise: the virtual depth sensor
+        (:func:`jaxmocap.synth.render.virtual_depth`).
+
+    Returns:
+      ``rgb (H, W, 3)`` uint8 — the mean of the sub-frames' shaded images plus ``N(0, noise²)``, rounded —,
+      ``depth (H, W)`` uint16 millimetres and ``labels (H, W)`` int32 (−1 background) of the first render.
+    """
+    image = None
+    for r in renders:
+        img = _form_image(r.normal, r.label, colours, light, background, illumination, AMBIENT)
+        image = img if image is None else image + img
+    image = np.asarray(image) * np.float32(255.0 / len(renders))
+    rgb8 = _quantise(image + rng.standard_normal(image.shape, dtype=np.float32) * np.float32(255.0 * noise))
+    first = renders[0]
+    depth_mm = render.virtual_depth(rng, np.asarray(first.depth), depth_smooth, depth_noise)
+    return rgb8, depth_mm, np.asarray(first.label)
+
+
+#: Licence line recorded for a clip by default: the CMU database's acknowledgement (every skeleton the project
+#: maps to the evaluation joints is a CMU one); pass ``licence=`` for clips from elsewhere.
+CMU_LICENCE = (
+    "CMU Graphics Lab Motion Capture Database (mocap.cs.cmu.edu), free for research and commercial use, not for "
+    "resale: 'The data used in this project was obtained from mocap.cs.cmu.edu. The database was created with "
+    "funding from NSF EIA-0196217.'"
+)
+
+
+def _prepare_output(out: pathlib.Path, overwrite: bool) -> None:
+    if out.exists() and not out.is_dir():
+        raise FileExistsError(f"{out} exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()):
+        if not overwrite:
+            raise FileExistsError(
+                f"{out} is not empty (pass overwrite=True / --overwrite to replace a sequence)"
+            )
+        if (out / seqio.VIEWS).is_dir():
+            shutil.rmtree(out / seqio.VIEWS)
+        for name in (seqio.CALIBRATION, seqio.META, seqio.GROUNDTRUTH, seqio.BODY):
+            if (out / name).exists():
+                (out / name).unlink()
+    out.mkdir(parents=True, exist_ok=True)
+
+
+def _rig_for(rig, size, points: np.ndarray, joints: np.ndarray) -> tuple[camera.Rig, np.ndarray, str]:
+    """``(cameras, world offset of the clip, rig name for meta.json)`` for a preset name, a calibration file or
+    a :class:`~jaxmocap.geometry.camera.Rig`; ``points (T, P, 3)`` must stay in view of a preset."""
+    if isinstance(rig, str) and rig in PRESETS:
+        return (
+            preset_rig(rig, points, joints, parse_size(size) if size is not None else (640, 480)),
+            np.zeros(3),
+            rig,
+        )
+    if isinstance(rig, str) and not os.path.exists(rig):
+        raise ValueError(f"unknown rig {rig!r}: a preset ({', '.join(PRESETS)}) or a calibration file")
+    source = "Rig" if isinstance(rig, camera.Rig) else os.fspath(rig)
+    cams = rig if isinstance(rig, camera.Rig) else camera.load_calibration(rig)
+    if any(s == (0, 0) for s in cams.image_size):
+        raise MocapInputError(source, "the calibration does not state its image size")
+    if size is not None:
+        (w, h), (w0, h0) = parse_size(size), cams.image_size[0]
+        if len(set(cams.image_size)) != 1:
+            raise ValueError("an image size for the sequence needs cameras that share one image size")
+        cams = camera.scale_images(cams, (w / w0, h / h0))
+    cams = dataclasses.replace(
+        cams, **{k: np.asarray(getattr(cams, k), np.float64) for k in ("K", "dist", "R", "t")}
+    )
+    return cams, place_motion(cams, joints), source
+
+
+def synthesize(
+    motion: str | os.PathLike | Motion,
+    out: str | os.PathLike,
+    *,
+    rig: str | os.PathLike | camera.Rig = "stereo",
+    asf: str | os.PathLike | None = None,
+    scale: float | None = None,
+    frames: str | tuple[int | None, int | None] | None = None,
+    fps: float = 30.0,
+    size: str | tuple[int, int] | None = None,
+    seed: int = 0,
+    background: str = "photo",
+    clutter: str | float = 0.0,
+    noise: float = 0.01,
+    depth_noise: float = 0.02,
+    depth_smooth: float = 1.5,
+    illumination: float = 0.0,
+    blur: int = 1,
+    overwrite: bool = False,
+    licence: str | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> seqio.Sequence:
+    """Render a synthetic multi-view sequence of a mocap clip into the folder ``out``
+    (layout: :mod:`jaxmocap.io.sequence`) and return it opened.
+
+    Args:
+      motion: a ``.bvh``/``.amc`` path, a :class:`~jaxmocap.io.mocap.Motion`, or ``"demo"``
+        (:func:`load_motion`); ``asf``, ``scale``: see :func:`load_motion`.
+      rig: a preset name (:data:`PRESETS`), a calibration file, or a :class:`~jaxmocap.geometry.camera.Rig`.
+      frames: source frame range ``"A:B"`` (default the whole clip); ``fps``: output rate, the source is
+        subsampled every ``round(source fps / fps)`` frames.
+      size: ``(w, h)`` or ``"WxH"``: image size (presets default 640×480; a calibration is rescaled).
+      seed: seeds every random number (noise, clutter, illumination phase).
+      background: ``"photo"``, ``"plain"`` or an image path; clutter: procedural clutter density (0–1 or
+        none/low/medium/high).
+      noise: RGB sensor noise standard deviation (image units, 1 = full scale).
+      depth_noise: depth noise standard deviation (metres); depth_smooth: its smoothing (pixels).
+      illumination: amplitude ``A`` of a global illumination change ``1 + A sin(2π t / 4 s + φ)``.
+      blur: number of consecutive source frames averaged per image (motion blur), centred on the frame;
+        mask, depth and labels are those of the central frame.
+      overwrite: replace an existing sequence in ``out``.
+      licence: the clip's licence line for ``meta.json`` (default :data:`CMU_LICENCE`).
+      progress: called as ``progress(done, total)`` after each frame.
+    """
+    m = load_motion(motion, asf, scale)
+    try:
+        ej_all = eval_joints(m)
+    except KeyError as e:
+        raise MocapInputError(m.source or None, str(e.args[0])) from None
+    if not (fps > 0 and math.isfinite(fps)):
+        raise ValueError(f"fps must be positive, got {fps}")
+    if fps > m.fps * (1 + 1e-9):
+        raise ValueError(f"fps {fps} exceeds the clip's {m.fps}")
+    if int(blur) < 1:
+        raise ValueError("blur must be at least 1 frame")
+    for what, val in (("noise", noise), ("depth_noise", depth_noise), ("depth_smooth", depth_smooth)):
+        if not (val >= 0 and math.isfinite(val)):
+            raise ValueError(f"{what} must be a non-negative number, got {val}")
+    if not (0 <= illumination < 1):
+        raise ValueError(f"illumination amplitude must lie in [0, 1), got {illumination}")
+    clutter = parse_clutter(clutter)
+    a, b = parse_frames(frames, m.num_frames)
+    step = max(1, int(round(m.fps / fps)))
+    src = np.arange(a, b, step)
+    T = len(src)
+    dressing = dress(m)
+    points = dressing_points(m, dressing, np.arange(m.num_frames))
+    joints = ej_all[src]
+    blur_lo = max(0, a - (int(blur) - 1) // 2)
+    cams, offset, rig_name = _rig_for(rig, size, points[blur_lo : b + int(blur)], joints)
+    points = points + offset
+    joints = joints + offset
+    out = pathlib.Path(out)
+    _prepare_output(out, overwrite)
+
+    colours = jnp.asarray(dressing.colours(), jnp.float32)
+    c, f, left = subject_frame(joints)
+    light_world = LIGHT[0] * f + LIGHT[1] * left + LIGHT[2] * np.array([0.0, 0.0, 1.0])
+    phase = float(np.random.default_rng([int(seed), 1 << 20]).uniform(0, 2 * math.pi))
+    V = cams.num_views
+    backgrounds = [
+        jnp.asarray(background_image(background, cams.image_size[v], v, seed, clutter), jnp.float32) / 255.0
+        for v in range(V)
+    ]
+    K, dist, Rv, tv = (np.asarray(x, np.float64) for x in (cams.K, cams.dist, cams.R, cams.t))
+    lights = [jnp.asarray(Rv[v] @ light_world / np.linalg.norm(light_world), jnp.float32) for v in range(V)]
+    half = (int(blur) - 1) // 2
+
+    def render_frame(i: int):
+        prims = scene_primitives(points[i], dressing)
+        views = [
+            render.render_view(
+                K[v], dist[v], Rv[v], tv[v], cams.image_size[v], prims, caps=CAPS, normals=True
+            )
+            for v in range(V)
+        ]
+        return prims, views
+
+    scene = {k: [] for k in ("cone_a", "cone_b", "ell_centre", "ell_axes")}
+    pool = ThreadPoolExecutor(max_workers=2)
+    writes = []
+    try:
+        pending = render_frame(int(src[0]))
+        for k, i in enumerate(src):
+            i = int(i)
+            prims, current = pending
+            if k + 1 < T:  # dispatched now, computed by XLA while this frame is finished on the host
+                pending = render_frame(int(src[k + 1]))
+            for key in scene:
+                scene[key].append(np.asarray(getattr(prims, key)))
+            illum = 1.0 + illumination * math.sin(
+                2 * math.pi * (k * step / m.fps) / ILLUMINATION_PERIOD + phase
+            )
+            subs = [min(max(i + d - half, 0), m.num_frames - 1) for d in range(int(blur))]
+            others = {s: render_frame(s)[1] for s in subs if s != i}
+            for v in range(V):
+                renders = [current[v] if s == i else others[s][v] for s in subs]
+                rng = np.random.default_rng([int(seed), k, v])
+                rgb8, depth_mm, labels = view_images(
+                    rng, renders, colours, lights[v], backgrounds[v], illum, noise, depth_smooth, depth_noise
+                )
+                name = cams.names[v]
+                writes += [
+                    pool.submit(seqio.write_rgb, seqio.frame_path(out, name, "rgb", k), rgb8),
+                    pool.submit(seqio.write_mask, seqio.frame_path(out, name, "mask", k), labels >= 0),
+                    pool.submit(seqio.write_depth, seqio.frame_path(out, name, "depth", k), depth_mm),
+                    pool.submit(seqio.write_labels, seqio.frame_path(out, name, "labels", k), labels),
+                ]
+            while len(writes) > 16 * V:
+                writes.pop(0).result()
+            if progress is not None:
+                progress(k + 1, T)
+        for w in writes:
+            w.result()
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+    seqio.write_calibration(out, cams)
+    dims = body_dimensions(m, dressing)
+    body_mod.save_body(out / seqio.BODY, "full25", dims)
+    seqio.write_groundtruth(
+        out,
+        joints,
+        m.positions[src] + offset,
+        m.joint_names,
+        frame_index=src,
+        time=(src - a) / m.fps,
+        part_names=np.asarray(dressing.part_names),
+        scene_cone_a=np.stack(scene["cone_a"]),
+        scene_cone_b=np.stack(scene["cone_b"]),
+        scene_cone_r_a=np.asarray(dressing.radius_start),
+        scene_cone_r_b=np.asarray(dressing.radius_end),
+        scene_ellipsoid_centre=np.stack(scene["ell_centre"]),
+        scene_ellipsoid_axes=np.stack(scene["ell_axes"]),
+    )
+    meta = {
+        "frames": T,
+        "fps": m.fps / step,
+        "generator": f"jaxmocap {__version__} synth",
+        "source": {
+            "clip": pathlib.Path(m.source).name if m.source else "",
+            "licence": CMU_LICENCE if licence is None else str(licence),
+            "fps": m.fps,
+            "frames": [a, b],
+            "step": step,
+        },
+        "rig": rig_name,
+        "cameras": list(cams.names),
+        "image_size": [list(s) for s in cams.image_size],
+        "world_offset": offset,
+        "seed": int(seed),
+        "background": os.fspath(background)
+        if background in ("photo", "plain")
+        else pathlib.Path(background).name,
+        "clutter": clutter,
+        "noise": {"rgb_sigma": noise, "depth_sigma_m": depth_noise, "depth_smooth_px": depth_smooth},
+        "illumination_amplitude": illumination,
+        "motion_blur_frames": int(blur),
+        "caps": CAPS,
+        "parts": list(dressing.part_names),
+        "part_roles": list(dressing.part_roles),
+        "part_colours": dressing.colours().round(4),
+        "body": seqio.BODY,
+        "joint_names": list(body_mod.EVAL_JOINTS),
+    }
+    seqio.write_meta(out, meta)
+    return seqio.load_sequence(out)

@@ -1,0 +1,1 @@
+"""Tracking: options, setup, initialisation, the run folder and the frame loop, sweeps."""

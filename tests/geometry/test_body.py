@@ -1,0 +1,110 @@
+"""Body presets: state layout of the three works, geometry in closed form, limits, body files, gradients."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxmocap.errors import MocapInputError
+from jaxmocap.geometry import body
+
+
+def test_state_sizes_of_the_three_works():
+    assert body.upper9().num_dofs == 13  # thesis eq. 6.1
+    assert body.upper14().num_dofs == 14  # IROS 2007
+    m = body.full25()
+    assert m.num_dofs == 25  # Li & Kulić
+    assert m.joint_names == body.EVAL_JOINTS
+    # every angle of full25 is limited (translation is the only unbounded part)
+    ang = m.angular
+    assert np.all(np.asarray(m.upper - m.lower)[ang] <= 4 * np.pi + 1e-6)
+    assert np.all(np.asarray(m.lower) <= np.asarray(m.rest_pose))
+    assert np.all(np.asarray(m.rest_pose) <= np.asarray(m.upper))
+
+
+def test_rest_pose_geometry_closed_form():
+    d = body.DEFAULT_DIMENSIONS
+    m = body.full25()
+    J = dict(zip(m.joint_names, np.asarray(body.joint_positions(m, m.rest_pose)), strict=True))
+    # standing on the floor, facing +x, left towards +y
+    np.testing.assert_allclose(J["left_ankle"][2], 0.0, atol=1e-6)
+    np.testing.assert_allclose(
+        J["left_wrist"] - J["left_shoulder"], [0, 0, -d["upper_arm_length"] - d["forearm_length"]], atol=1e-6
+    )
+    np.testing.assert_allclose(J["left_shoulder"][1] - J["right_shoulder"][1], d["shoulder_width"], atol=1e-6)
+    assert J["left_hip"][1] > 0 > J["right_hip"][1]
+
+
+def test_elbow_and_knee_bend_the_natural_way():
+    m = body.full25()
+    x = m.rest_pose.at[m.dof_index("left_elbow")].set(np.pi / 2).at[m.dof_index("right_knee")].set(np.pi / 2)
+    J = dict(zip(m.joint_names, np.asarray(body.joint_positions(m, x)), strict=True))
+    forearm = J["left_wrist"] - J["left_elbow"]
+    shin = J["right_ankle"] - J["right_knee"]
+    assert forearm[0] > 0.2 and abs(forearm[2]) < 1e-6  # hand moves forward (+x)
+    assert shin[0] < -0.2 and abs(shin[2]) < 1e-6  # foot moves backwards
+
+
+def test_root_orientation_turns_the_whole_body():
+    m = body.full25()
+    x0 = m.rest_pose
+    x = x0.at[m.dof_index("root_rz")].set(np.pi / 2)
+    J0 = np.asarray(body.joint_positions(m, x0))
+    J = np.asarray(body.joint_positions(m, x))
+    rz = np.asarray([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    root = J0[0]
+    np.testing.assert_allclose(J - root, (J0 - root) @ rz.T, atol=1e-6)
+
+
+def test_limits_clip():
+    m = body.upper9()
+    x = jnp.full((4, m.num_dofs), 1e3)
+    assert bool(jnp.all(body.within_limits(m, body.clip_to_limits(m, x))))
+    assert not bool(jnp.any(body.within_limits(m, x)))
+
+
+def test_gradient_with_respect_to_limb_length():
+    """d(wrist height)/d(forearm length) = −1 with the arm hanging (closed form)."""
+
+    def wrist_z(forearm):
+        m = body.full25({"forearm_length": forearm})
+        return body.joint_positions(m, m.rest_pose)[body.EVAL_JOINTS.index("left_wrist"), 2]
+
+    g = jax.grad(wrist_z)(0.26)
+    np.testing.assert_allclose(g, -1.0, atol=1e-6)
+
+
+def test_body_file_round_trip_and_errors(tmp_path):
+    dims = {"forearm_length": 0.3, "left_upper_arm_length": 0.31}
+    p = tmp_path / "subject.toml"
+    body.save_body(p, "full25", dims)
+    m = body.load_body(p)
+    ref = body.full25(dims)
+    np.testing.assert_allclose(np.asarray(m.offset), np.asarray(ref.offset))
+    bad = tmp_path / "bad.toml"
+    bad.write_text('model = "full25"\n[dimensions]\nforearm_length = "long"\n')
+    with pytest.raises(MocapInputError, match="bad.toml"):
+        body.load_body(bad)
+    bad.write_text('model = "full25"\n[dimensions]\nforearm_length = -0.2\n')
+    with pytest.raises(MocapInputError, match="non-negative"):
+        body.load_body(bad)
+    signed = tmp_path / "signed.toml"
+    body.save_body(signed, "full25", {"shoulder_drop": -0.047})  # CMU shoulders sit above the neck base
+    np.testing.assert_allclose(
+        np.asarray(body.load_body(signed).offset), np.asarray(body.full25({"shoulder_drop": -0.047}).offset)
+    )
+    bad.write_text("model = [\n")
+    with pytest.raises(MocapInputError, match="not valid TOML"):
+        body.load_body(bad)
+    bad.write_text('model = "nobody"\n')
+    with pytest.raises(MocapInputError, match="unknown body model"):
+        body.load_body(bad)
+    with pytest.raises(MocapInputError, match="cannot read"):
+        body.load_body(tmp_path / "missing.toml")
+
+
+@pytest.mark.parametrize("name", ["upper9", "upper14", "full25"])
+def test_shipped_body_files_load(name):
+    m = body.load_body(body.default_body_path(name))
+    assert m.name == name
+    np.testing.assert_allclose(np.asarray(m.offset), np.asarray(body.build(name).offset))

@@ -1,0 +1,167 @@
+"""Kinematics against closed forms, SciPy and the spatial product of exponentials (eq. 2.5)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.linalg
+from jax import enable_x64
+from jax.test_util import check_grads
+from scipy.spatial.transform import Rotation
+
+from jaxmocap.geometry import body, kinematics
+
+
+def _rotvecs(rng, n):
+    v = rng.normal(size=(n, 3))
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    angles = np.concatenate([rng.uniform(0, np.pi - 1e-3, n - 3), [0.0, 1e-9, 1e-4]])
+    return v * angles[:, None]
+
+
+def test_so3_exp_matches_scipy_and_log_inverts():
+    rng = np.random.default_rng(0)
+    w = _rotvecs(rng, 200)
+    with enable_x64(True):
+        R = np.asarray(kinematics.so3_exp(jnp.asarray(w)))
+        np.testing.assert_allclose(R, Rotation.from_rotvec(w).as_matrix(), atol=1e-12)
+        np.testing.assert_allclose(np.asarray(kinematics.so3_log(jnp.asarray(R))), w, atol=1e-7)
+
+
+def test_se3_exp_matches_matrix_exponential():
+    rng = np.random.default_rng(1)
+    xi = np.concatenate([rng.normal(size=(50, 3)), _rotvecs(rng, 50)], axis=1)
+    with enable_x64(True):
+        G = np.asarray(kinematics.se3_exp(jnp.asarray(xi)))
+    for k in range(len(xi)):
+        M = np.zeros((4, 4))
+        wx, wy, wz = xi[k, 3:]
+        M[:3, :3] = [[0.0, -wz, wy], [wz, 0.0, -wx], [-wy, wx, 0.0]]
+        M[:3, 3] = xi[k, :3]
+        np.testing.assert_allclose(G[k], scipy.linalg.expm(M), atol=1e-10)
+
+
+def test_revolute_twist_rotates_about_its_point():
+    """exp of ξ = (−ω×q, ω) fixes the point q and rotates others about the axis through q (eq. 2.9)."""
+    with enable_x64(True):
+        q = jnp.asarray([0.3, -0.2, 1.0])
+        axis = jnp.asarray([0.0, 0.0, 1.0])
+        G = np.asarray(kinematics.se3_exp(kinematics.revolute_twist(axis, q) * (np.pi / 2)))
+    np.testing.assert_allclose(G[:3, :3] @ np.asarray(q) + G[:3, 3], q, atol=1e-12)
+    p = np.asarray(q) + np.asarray([1.0, 0.0, 0.5])
+    np.testing.assert_allclose(G[:3, :3] @ p + G[:3, 3], np.asarray(q) + [0.0, 1.0, 0.5], atol=1e-12)
+
+
+def test_gradients_of_exponentials():
+    with enable_x64(True):
+        w = jnp.asarray([0.3, -0.7, 0.2])
+        check_grads(kinematics.so3_exp, (w,), order=2, modes=["fwd", "rev"])
+        check_grads(kinematics.so3_exp, (jnp.zeros(3),), order=1, modes=["fwd", "rev"])
+        xi = jnp.asarray([0.1, 0.4, -0.3, 0.3, -0.7, 0.2])
+        check_grads(kinematics.se3_exp, (xi,), order=2, modes=["fwd", "rev"])
+
+
+def _spatial_chain(model, x, segment):
+    """Spatial PoE (eq. 2.5) for the chain from the root to ``segment``, built from the model's rest geometry."""
+    chain = []
+    s = segment
+    while s >= 0:
+        chain.append(s)
+        s = model.topology.parents[s]
+    chain.reverse()
+    R0, t0 = body.segment_poses(model, jnp.zeros(model.num_dofs, x.dtype))
+    twists, thetas = [], []
+    for s in chain:
+        for k in model.topology.segment_dofs[s]:
+            axis_world = R0[s] @ model.dof_axis[k]
+            if model.topology.dof_kinds[k] == "P":
+                twists.append(kinematics.prismatic_twist(axis_world))
+            else:
+                twists.append(kinematics.revolute_twist(axis_world, t0[s]))
+            thetas.append(x[k])
+    g0 = jnp.eye(4, dtype=x.dtype).at[:3, :3].set(R0[segment]).at[:3, 3].set(t0[segment])
+    return kinematics.poe(jnp.stack(twists), jnp.stack(thetas), g0)
+
+
+@pytest.mark.parametrize("name", ["upper9", "upper14", "full25"])
+def test_tree_fk_equals_spatial_product_of_exponentials(name):
+    rng = np.random.default_rng(2)
+    with enable_x64(True):
+        model = body.build(name, dtype=jnp.float64)
+        for _ in range(3):
+            x = jnp.asarray(rng.uniform(np.maximum(model.lower, -3.0), np.minimum(model.upper, 3.0)))
+            R, t = body.segment_poses(model, x)
+            for s in range(model.topology.num_segments):
+                g = np.asarray(_spatial_chain(model, x, s))
+                np.testing.assert_allclose(np.asarray(R[s]), g[:3, :3], atol=1e-12)
+                np.testing.assert_allclose(np.asarray(t[s]), g[:3, 3], atol=1e-12)
+
+
+def test_tree_fk_against_scipy_composition():
+    """An independent composition of homogeneous matrices with SciPy rotations."""
+    rng = np.random.default_rng(3)
+    with enable_x64(True):
+        model = body.full25(dtype=jnp.float64)
+        x = np.asarray(rng.uniform(np.maximum(model.lower, -3.0), np.minimum(model.upper, 3.0)))
+        R, t = body.segment_poses(model, jnp.asarray(x))
+    G = []
+    for s in range(model.topology.num_segments):
+        g = np.eye(4)
+        g[:3, 3] = np.asarray(model.offset[s])
+        for k in model.topology.segment_dofs[s]:
+            a = np.asarray(model.dof_axis[k])
+            e = np.eye(4)
+            if model.topology.dof_kinds[k] == "P":
+                e[:3, 3] = a * x[k]
+            else:
+                e[:3, :3] = Rotation.from_rotvec(a * x[k]).as_matrix()
+            g = g @ e
+        p = model.topology.parents[s]
+        G.append(g if p < 0 else G[p] @ g)
+    np.testing.assert_allclose(np.asarray(R), np.stack(G)[:, :3, :3], atol=1e-12)
+    np.testing.assert_allclose(np.asarray(t), np.stack(G)[:, :3, 3], atol=1e-12)
+
+
+def test_fk_gradients():
+    with enable_x64(True):
+        model = body.full25(dtype=jnp.float64)
+        x = model.rest_pose + 0.1
+        check_grads(lambda x: body.joint_positions(model, x), (x,), order=1, modes=["fwd", "rev"])
+
+
+def test_vmap_over_10000_particles_compiles_once():
+    model = body.full25()
+    traces = []
+
+    def joints(X):
+        traces.append(1)
+        return jax.vmap(lambda x: body.joint_positions(model, x))(X)
+
+    f = jax.jit(joints)
+    X1 = jax.random.uniform(jax.random.key(0), (10_000, model.num_dofs), minval=-0.5, maxval=0.5)
+    X2 = jax.random.uniform(jax.random.key(1), (10_000, model.num_dofs), minval=-0.5, maxval=0.5)
+    J1 = f(X1)
+    J2 = f(X2)
+    assert J1.shape == (10_000, 15, 3) and bool(jnp.all(jnp.isfinite(J2)))
+    assert len(traces) == 1
+    # the batched result equals the per-particle one
+    np.testing.assert_allclose(np.asarray(J1[17]), np.asarray(body.joint_positions(model, X1[17])), atol=1e-5)
+
+
+def test_transform_points_matches_per_point_products():
+    rng = np.random.default_rng(4)
+    R = jnp.asarray(Rotation.random(5, random_state=5).as_matrix(), jnp.float32)[None].repeat(2, 0)
+    t = jnp.asarray(rng.normal(size=(2, 5, 3)), jnp.float32)
+    pts = jnp.asarray(rng.normal(size=(7, 3)), jnp.float32)
+    seg = np.asarray([0, 0, 1, 2, 3, 4, 4])
+    assert kinematics.segment_runs(seg) == [(0, 2, 0), (2, 3, 1), (3, 4, 2), (4, 5, 3), (5, 7, 4)]
+    out = np.asarray(kinematics.transform_points(R, t, pts, seg))
+    ref = np.einsum("npij,pj->npi", np.asarray(R)[:, seg], np.asarray(pts)) + np.asarray(t)[:, seg]
+    np.testing.assert_allclose(out, ref, atol=1e-5)
+    # interleaved segments (more runs than MAX_RUNS: the per-point gather) give the same products
+    seg = np.arange(2 * kinematics.MAX_RUNS + 1) % 5
+    pts = jnp.asarray(rng.normal(size=(seg.size, 3)), jnp.float32)
+    assert len(kinematics.segment_runs(seg)) > kinematics.MAX_RUNS
+    out = np.asarray(kinematics.transform_points(R, t, pts, seg))
+    ref = np.einsum("npij,pj->npi", np.asarray(R)[:, seg], np.asarray(pts)) + np.asarray(t)[:, seg]
+    np.testing.assert_allclose(out, ref, atol=1e-5)
