@@ -31,9 +31,9 @@ import numpy as np
 
 from jaxmocap.features.observation import make_observation
 from jaxmocap.geometry import body, camera, flesh
+from jaxmocap.likelihood import colour_cues, cues
 from jaxmocap.likelihood import compose as L
-from jaxmocap.likelihood import cues
-from jaxmocap.synth.generate import look_at
+from jaxmocap.synth.stage import look_at
 
 W, H = 640, 480
 F = np.float32
@@ -241,7 +241,7 @@ class NumpyLikelihood:
         if obs.has("rgb"):
             c8 = np.round(np.clip(np.asarray(obs.rgb), 0, 1) * 255).astype(np.int32)
             self.rgb = (c8.reshape(-1, 3) / F(255)).astype(F)
-            self.bins = np.asarray(cues._colour_bins(jnp.asarray(c8), 4, "rgb")).reshape(-1)
+            self.bins = np.asarray(colour_cues._colour_bins(jnp.asarray(c8), 4, "rgb")).reshape(-1)
         self.obs = obs
         self.refs = lik.references
 

@@ -20,7 +20,7 @@ import numpy as np
 from jaxmocap.features.observation import Observation, make_observation
 from jaxmocap.geometry import body, camera
 from jaxmocap.synth import render
-from jaxmocap.synth.generate import look_at
+from jaxmocap.synth.stage import look_at
 
 SMALL = os.environ.get("JAXMOCAP_NB_SMALL", "0") not in ("", "0")
 SIZE = (96, 72) if SMALL else (160, 120)

@@ -28,10 +28,15 @@ import numpy as np
 
 from jaxmocap.errors import MocapInputError
 from jaxmocap.features.skin import SkinModel, train_skin_model
+from jaxmocap.io.openpose import BODY_25B_INDEX
 
 # BODY_25B indices
-NOSE, L_SHOULDER, R_SHOULDER, L_ELBOW, R_ELBOW, L_WRIST, R_WRIST = 0, 5, 6, 7, 8, 9, 10
-L_HIP, R_HIP, L_KNEE, R_KNEE, L_ANKLE, R_ANKLE, NECK, HEAD_TOP = 11, 12, 13, 14, 15, 16, 17, 18
+NOSE, L_SHOULDER, R_SHOULDER, L_ELBOW, R_ELBOW, L_WRIST, R_WRIST = (
+    BODY_25B_INDEX[n] for n in ("Nose", "LShoulder", "RShoulder", "LElbow", "RElbow", "LWrist", "RWrist")
+)
+L_HIP, R_HIP, L_KNEE, R_KNEE, L_ANKLE, R_ANKLE, NECK, HEAD_TOP = (
+    BODY_25B_INDEX[n] for n in ("LHip", "RHip", "LKnee", "RKnee", "LAnkle", "RAnkle", "UpperNeck", "HeadTop")
+)
 
 SKIN_SEGMENTS = (
     (L_SHOULDER, L_ELBOW),

@@ -15,7 +15,13 @@ import numpy as np
 
 from jaxmocap.errors import MocapInputError
 
-__all__ = ["BODY_25B_KEYPOINTS", "load_openpose_json", "load_openpose_folder"]
+__all__ = [
+    "BODY_25B_KEYPOINTS",
+    "BODY_25B_INDEX",
+    "BODY_25B_OF_JOINT",
+    "load_openpose_json",
+    "load_openpose_folder",
+]
 
 #: Keypoint names of OpenPose's BODY_25B model, in output order.
 BODY_25B_KEYPOINTS: tuple[str, ...] = (
@@ -45,6 +51,30 @@ BODY_25B_KEYPOINTS: tuple[str, ...] = (
     "RSmallToe",
     "RHeel",
 )
+
+#: Index of each BODY_25B keypoint name (the one table of BODY_25B indices).
+BODY_25B_INDEX: dict[str, int] = {name: i for i, name in enumerate(BODY_25B_KEYPOINTS)}
+
+#: BODY_25B keypoint of each evaluation joint (:data:`jaxmocap.geometry.body.EVAL_JOINTS`) it measures (``thorax``
+#: ≈ the upper neck; the root and the head centre have none).
+BODY_25B_OF_JOINT: dict[str, int] = {
+    joint: BODY_25B_INDEX[name]
+    for joint, name in (
+        ("thorax", "UpperNeck"),
+        ("left_shoulder", "LShoulder"),
+        ("right_shoulder", "RShoulder"),
+        ("left_elbow", "LElbow"),
+        ("right_elbow", "RElbow"),
+        ("left_wrist", "LWrist"),
+        ("right_wrist", "RWrist"),
+        ("left_hip", "LHip"),
+        ("right_hip", "RHip"),
+        ("left_knee", "LKnee"),
+        ("right_knee", "RKnee"),
+        ("left_ankle", "LAnkle"),
+        ("right_ankle", "RAnkle"),
+    )
+}
 
 
 def _person_array(path, person: dict, k: int) -> np.ndarray:

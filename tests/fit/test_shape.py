@@ -13,7 +13,7 @@ from jaxmocap.fit import shape
 from jaxmocap.geometry import body, camera
 from jaxmocap.likelihood import compose as L
 from jaxmocap.synth import render
-from jaxmocap.synth.generate import look_at
+from jaxmocap.synth.stage import look_at
 
 W, H = 120, 90
 #: The subject: default dimensions times these factors (5–10 % changes, 2–4 cm on each limb).

@@ -12,10 +12,10 @@ import pytest
 from jaxmocap.features.colour import bhattacharyya_distance, roi_histograms
 from jaxmocap.features.observation import make_observation
 from jaxmocap.geometry import body, camera, flesh
+from jaxmocap.likelihood import colour_cues, cues
 from jaxmocap.likelihood import compose as L
-from jaxmocap.likelihood import cues
 from jaxmocap.synth import render
-from jaxmocap.synth.generate import look_at
+from jaxmocap.synth.stage import look_at
 
 W, H = 160, 120
 #: a colour per primitive label (cones, then the head), and the background grey
@@ -199,7 +199,7 @@ def test_colour_bins_match_roi_histograms():
     rgb8 = jnp.asarray(img[..., ::-1].astype(np.int32))
     for space, bins in (("rgb", 4), ("rgb", 8), ("rg", 5)):
         ref = roi_histograms(img, [np.ones((20, 30), bool)], bins=bins, space=space)[0]
-        b = np.asarray(cues._colour_bins(rgb8, bins, space)).ravel()
+        b = np.asarray(colour_cues._colour_bins(rgb8, bins, space)).ravel()
         np.testing.assert_allclose(np.bincount(b, minlength=ref.size) / b.size, ref)
 
 
@@ -210,7 +210,7 @@ def test_slot_counts_batch_as_bincount():
     size = 11
     slots = rng.integers(0, size, size=(3, 4, 2, 25)).astype(np.int32)
     ref = np.stack([[np.bincount(s.reshape(-1), minlength=size) for s in row] for row in slots])
-    count = cues._counter(size)
+    count = colour_cues._counter(size)
     np.testing.assert_array_equal(np.asarray(count(jnp.asarray(slots[0, 0]))), ref[0, 0])
     np.testing.assert_array_equal(np.asarray(jax.vmap(count)(jnp.asarray(slots[0]))), ref[0])
     np.testing.assert_array_equal(np.asarray(jax.jit(jax.vmap(jax.vmap(count)))(jnp.asarray(slots))), ref)
@@ -238,7 +238,7 @@ def test_colour_histogram_closed_forms(scene):
     c = np.array([0.1, 0.8, 0.45], np.float32)
     flat = _observe(model, rig, x, rgb=[np.broadcast_to(c, (H, W, 3)).copy()] * 2)
     E_flat = np.asarray(lik.view_energies(x, flat))[0]
-    b = int(cues._colour_bins(jnp.asarray(np.round(c * 255).astype(np.int32)), 4, "rgb"))
+    b = int(colour_cues._colour_bins(jnp.asarray(np.round(c * 255).astype(np.int32)), 4, "rgb"))
     q = np.asarray(lik.references[0])  # (V, R, B)
     onehot = np.zeros(64)
     onehot[b] = 1.0

@@ -1,0 +1,124 @@
+"""What a cue reads besides the observation: the projected geometry of one particle (:class:`Geometry`), the
+cue's context (:class:`CueContext`), and the sample lookups the cue modules share (map values at the surface and
+contour samples, a segment's run of surface points, joint indices, masked means).
+
+Shapes: ``V`` views, ``P`` flesh surface points, ``Q`` occluding-contour points, ``J`` evaluation joints.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+
+from jaxmocap.geometry import flesh
+from jaxmocap.likelihood import maps
+
+
+class Geometry(NamedTuple):
+    """Projected geometry of one particle (fields a configuration does not need are ``None``).
+
+    joints ``(J, 3)`` world evaluation joints; joints_uv ``(V, J, 2)``;
+    surface ``(P, 3)`` world flesh points; surface_uv ``(V, P, 2)``; surface_depth ``(V, P)`` camera z;
+    surface_facing ``(V, P)`` bool: outward normal faces the camera (and the point is in front of it);
+    surface_index, surface_inside ``(V, P)``: nearest-pixel flat index into the ``(V, H, W)`` maps and the
+    in-image mask (:func:`jaxmocap.likelihood.maps.nearest_index`), shared by every nearest-pixel surface cue;
+    surface_visible_index ``(V, P)``: the same index where the sample faces the camera and lies in the image, else
+    the sentinel ``V·H·W`` (:func:`jaxmocap.likelihood.maps.visible_index`): one gather from a map with a sentinel entry
+    returns the value and the visibility together;
+    contour_uv ``(V, Q, 2)`` occluding-contour points of the primitives seen from each camera;
+    contour_index, contour_inside ``(V, Q)`` likewise;
+    primitives: :class:`jaxmocap.geometry.flesh.Primitives` in the world frame.
+    """
+
+    joints: jnp.ndarray | None = None
+    joints_uv: jnp.ndarray | None = None
+    surface: jnp.ndarray | None = None
+    surface_uv: jnp.ndarray | None = None
+    surface_depth: jnp.ndarray | None = None
+    surface_facing: jnp.ndarray | None = None
+    surface_index: jnp.ndarray | None = None
+    surface_inside: jnp.ndarray | None = None
+    surface_visible_index: jnp.ndarray | None = None
+    contour_uv: jnp.ndarray | None = None
+    contour_index: jnp.ndarray | None = None
+    contour_inside: jnp.ndarray | None = None
+    primitives: flesh.Primitives | None = None
+
+
+class CueContext(NamedTuple):
+    """What a cue may read besides geometry and observation.
+
+    Static: ``joint_names``, ``params`` (the cue's parameters), ``rig``, ``model`` (the body model),
+    ``surface_segment`` (segment of each surface point). Per call: ``aux`` (the cue's ``prepare`` result) and
+    ``ref`` (the reference data the likelihood holds for this cue: colour histograms or templates of the first
+    frame, see :meth:`jaxmocap.likelihood.compose.Likelihood.with_references`).
+    """
+
+    joint_names: tuple[str, ...]
+    params: dict
+    rig: object
+    model: object = None
+    surface_segment: tuple[int, ...] = ()
+    aux: object = None
+    ref: object = None
+
+
+def _unit_scale(a: jnp.ndarray) -> float:
+    """Scale that maps a stored unit map to [0, 1] (``uint8`` maps store ``round(255·p)``)."""
+    return 1.0 / 255.0 if a.dtype == jnp.uint8 else 1.0
+
+
+def _surface_values(obs_map, g: Geometry, ctx: CueContext, unit: bool = True, points: slice = slice(None)):
+    """``(values (V, P'), inside (V, P'))`` of a ``(V, H, W)`` map at the surface points ``points`` (a static
+    slice, default all; nearest or bilinear)."""
+    s = _unit_scale(obs_map) if unit else 1.0
+    if ctx.params.get("bilinear", False):
+        i00, fu, fv, inside = maps.bilinear_index(g.surface_uv[:, points], obs_map.shape)
+        return maps.gather_bilinear(obs_map, i00, fu, fv, s), inside
+    return maps.gather(obs_map, g.surface_index[:, points], s), g.surface_inside[:, points]
+
+
+def _contour_values(obs_map, g: Geometry, ctx: CueContext, unit: bool = True):
+    s = _unit_scale(obs_map) if unit else 1.0
+    if ctx.params.get("bilinear", False):
+        i00, fu, fv, inside = maps.bilinear_index(g.contour_uv, obs_map.shape)
+        return maps.gather_bilinear(obs_map, i00, fu, fv, s), inside
+    return maps.gather(obs_map, g.contour_index, s), g.contour_inside
+
+
+def _segment_points(ctx: CueContext, segment: int) -> slice:
+    """The static slice of surface points on ``segment`` (points are stored segment by segment)."""
+    seg = np.asarray(ctx.surface_segment)
+    where = np.flatnonzero(seg == segment)
+    if where.size == 0:
+        raise ValueError(f"segment {ctx.model.segment_names[segment]!r} has no surface points")
+    return slice(int(where[0]), int(where[-1]) + 1)
+
+
+def _segment_ids(ctx: CueContext, names, default: str) -> tuple[int, ...]:
+    """Segment indices of ``names`` (or of the default set: ``"fleshed"`` = every segment with surface points,
+    ``"limbs"`` = those but the head)."""
+    segs = ctx.model.segment_names
+    have = sorted(set(ctx.surface_segment))
+    if names is None:
+        out = [s for s in have if not (default == "limbs" and segs[s] == "head")]
+    else:
+        unknown = [n for n in names if n not in segs]
+        if unknown:
+            raise ValueError(f"unknown segments {unknown}; the model has {segs}")
+        out = [segs.index(n) for n in names]
+    return tuple(out)
+
+
+def _joint_index(ctx: CueContext, names) -> np.ndarray:
+    missing = [j for j in names if j not in ctx.joint_names]
+    if missing:
+        raise ValueError(f"the model has no joints {missing}; it has {ctx.joint_names}")
+    return np.asarray([ctx.joint_names.index(j) for j in names])
+
+
+def _weighted_mean(values, w, axis=-1, empty=0.0):
+    s = jnp.sum(w, axis=axis)
+    return jnp.where(s > 0, jnp.sum(values * w, axis=axis) / jnp.maximum(s, 1e-12), empty)
