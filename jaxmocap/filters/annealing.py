@@ -13,7 +13,7 @@ counted in ``N``.
 Rules for β, all usable inside ``jit``:
 
 * :func:`solve_beta` — Deutscher's rule: the β with α(β) = α_target (default 0.5), by bisection on ``[0, β_max]``
-  (``jaxopt.Bisection``). Without a sign change it falls back (``status``): α(β_max) > α_target → ``β_max`` (the
+  (:mod:`jaxmocap.fit.solvers`). Without a sign change it falls back (``status``): α(β_max) > α_target → ``β_max`` (the
   sharpest exponent allowed: the log-likelihoods are too flat to reach the target); α(0) < α_target (more than
   ``1 - α_target`` of the particles are dead) → ``0`` (uniform weights over the live particles).
 * :func:`corrected_beta` — the thesis' single correction (López Méndez 2009, eq. 6.4):
@@ -23,8 +23,8 @@ Rules for β, all usable inside ``jit``:
   ``-α_target`` (i.e. "β too large") as soon as some ``β (ll_i - min ll) > 40``, and β = 1 when there is no sign change.
 * fixed sequences (:meth:`Schedule.fixed`, :meth:`Schedule.iros2007`).
 
-The bisection calls ``jaxopt.Bisection(check_bracket=False)`` through :func:`_bisection`, the one place that touches
-the root-finding library. β carries no gradient (``stop_gradient`` on the log-likelihoods it is computed from).
+The bisection calls :func:`jaxmocap.fit.solvers.bisection_with_value` (no bracket check) through :func:`_bisection`.
+β carries no gradient (``stop_gradient`` on the log-likelihoods it is computed from).
 """
 
 from __future__ import annotations
@@ -35,7 +35,8 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-import jaxopt
+
+from jaxmocap.fit import solvers
 
 __all__ = [
     "IROS2007_DYNAMICS_EXPONENTS",
@@ -117,17 +118,13 @@ class BetaSolution(NamedTuple):
 
 
 def _bisection(fn, lower, upper, tol: float, maxiter: int, *args):
-    """Root of ``fn(β, *args)`` on ``[lower, upper]`` by bisection, jit-compatible.
+    """Root of ``fn(β, *args)`` on ``[lower, upper]`` by bisection, jit-compatible
+    (:func:`jaxmocap.fit.solvers.bisection_with_value`).
 
     Returns ``(β, fn(β))`` at the last midpoint. The caller checks the bracket (no check is made here, so the
-    function works under ``jit``). This is the project's single use of ``jaxopt`` for β and is meant to move into
-    ``jaxmocap.fit.solvers``.
+    function works under ``jit``).
     """
-    solver = jaxopt.Bisection(
-        optimality_fun=fn, lower=lower, upper=upper, tol=tol, maxiter=maxiter, check_bracket=False
-    )
-    params, state = solver.run(None, *args)
-    return params, state.value
+    return solvers.bisection_with_value(fn, lower, upper, *args, maxiter=maxiter, tol=tol)
 
 
 def solve_beta(

@@ -6,7 +6,8 @@ can replace it here without touching them. All functions are pure, jit-able and 
 * :func:`least_squares` — ``argmin_x ½‖r(x)‖²`` by Levenberg–Marquardt (Madsen & Nielsen, alg. 6.18):
   ``(JᵀJ + μI) Δ = −Jᵀr`` with the damping μ adapted by the gain ratio (jaxopt's ``LevenbergMarquardt``).
 * :func:`bisection` — a root of a scalar function bracketed by ``[lo, hi]``, usable under ``jit`` (no bracket
-  check; the caller guarantees ``f(lo)`` and ``f(hi)`` differ in sign, or gets the nearest end).
+  check; the caller guarantees ``f(lo)`` and ``f(hi)`` differ in sign, or gets the nearest end);
+  :func:`bisection_with_value` also returns ``f`` there (the annealing β rules of :mod:`jaxmocap.filters.annealing`).
 * :func:`minimize` — ``argmin_x f(x)`` by L-BFGS.
 """
 
@@ -89,8 +90,17 @@ def bisection(
 
     ``lo`` and ``hi`` may be traced. Stops after ``maxiter`` halvings or when ``|fn| ≤ tol``.
     """
+    return bisection_with_value(fn, lo, hi, *args, maxiter=maxiter, tol=tol)[0]
+
+
+def bisection_with_value(
+    fn: Callable[..., jnp.ndarray], lo, hi, *args, maxiter: int = 60, tol: float = 1e-6
+) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """:func:`bisection` that also returns ``fn`` at the root: ``(x, fn(x, *args))`` at the last midpoint, from
+    which the caller tells a met tolerance from an exhausted ``maxiter`` or a bracket without a sign change."""
     solver = jaxopt.Bisection(fn, lower=lo, upper=hi, maxiter=maxiter, tol=tol, check_bracket=False, jit=True)
-    return solver.run(None, *args).params
+    params, state = solver.run(None, *args)
+    return params, state.value
 
 
 def minimize(
