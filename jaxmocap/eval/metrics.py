@@ -41,6 +41,7 @@ import numpy as np
 
 from jaxmocap.errors import MocapInputError
 from jaxmocap.geometry.body import EVAL_JOINTS
+from jaxmocap.io.export import _read_npz
 
 __all__ = ["Evaluation", "evaluate", "joint_errors", "load_groundtruth", "load_prediction", "format_table"]
 
@@ -200,29 +201,41 @@ def evaluate(
 # Files
 
 
-def _read_npz(path: pathlib.Path) -> dict:
-    import zipfile
+#: The messages of a missing file and of a missing ``joints`` array, by file name.
+_NPZ_ERRORS = {
+    "poses.npz": (
+        "no such file (expected a tracking output folder or its poses.npz)",
+        "no 'joints' array: not a jaxmocap poses.npz",
+    ),
+    "groundtruth.npz": (
+        "no ground truth (expected a sequence folder with groundtruth.npz)",
+        "ground truth needs 'joints'",
+    ),
+}
 
-    try:
-        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:
-            return {k: z[k] for k in z.files}
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as e:
-        raise MocapInputError(path, f"cannot read: {e}") from None
+
+def _npz_joints(path: str | os.PathLike, name: str) -> tuple[pathlib.Path, dict, np.ndarray]:
+    """``(file, arrays, joints (T, 15, 3) float64)`` of the ``.npz`` at ``path`` (or ``path / name`` for a folder;
+    ``name`` a key of :data:`_NPZ_ERRORS`), its ``joints`` checked against
+    :data:`~jaxmocap.geometry.body.EVAL_JOINTS`; raises :class:`MocapInputError`."""
+    no_file, no_joints = _NPZ_ERRORS[name]
+    p = pathlib.Path(path)
+    if p.is_dir():
+        p = p / name
+    if not p.is_file():
+        raise MocapInputError(p, no_file)
+    data = _read_npz(p)
+    if "joints" not in data:
+        raise MocapInputError(p, no_joints)
+    joints = np.asarray(data["joints"], np.float64)
+    if joints.ndim != 3 or joints.shape[1:] != (len(EVAL_JOINTS), 3):
+        raise MocapInputError(p, f"'joints' must be (T, {len(EVAL_JOINTS)}, 3), got {joints.shape}")
+    return p, data, joints
 
 
 def load_prediction(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """``(frame_index (T,), joints (T, 15, 3))`` of a tracking run: its output folder or its ``poses.npz``."""
-    p = pathlib.Path(path)
-    if p.is_dir():
-        p = p / "poses.npz"
-    if not p.is_file():
-        raise MocapInputError(p, "no such file (expected a tracking output folder or its poses.npz)")
-    data = _read_npz(p)
-    if "joints" not in data:
-        raise MocapInputError(p, "no 'joints' array: not a jaxmocap poses.npz")
-    joints = np.asarray(data["joints"], np.float64)
-    if joints.ndim != 3 or joints.shape[1:] != (len(EVAL_JOINTS), 3):
-        raise MocapInputError(p, f"'joints' must be (T, {len(EVAL_JOINTS)}, 3), got {joints.shape}")
+    p, data, joints = _npz_joints(path, "poses.npz")
     if "joint_names" in data and tuple(str(n) for n in data["joint_names"]) != EVAL_JOINTS:
         raise MocapInputError(p, "'joint_names' must be jaxmocap.geometry.body.EVAL_JOINTS")
     frames = np.asarray(data.get("frame_index", np.arange(joints.shape[0])), np.int64)
@@ -235,17 +248,7 @@ def load_prediction(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
 
 def load_groundtruth(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """``(frame_index (T,), joints (T, 15, 3))`` of a sequence folder's ground truth (or a ``groundtruth.npz``)."""
-    p = pathlib.Path(path)
-    if p.is_dir():
-        p = p / "groundtruth.npz"
-    if not p.is_file():
-        raise MocapInputError(p, "no ground truth (expected a sequence folder with groundtruth.npz)")
-    data = _read_npz(p)
-    if "joints" not in data:
-        raise MocapInputError(p, "ground truth needs 'joints'")
-    joints = np.asarray(data["joints"], np.float64)
-    if joints.ndim != 3 or joints.shape[1:] != (len(EVAL_JOINTS), 3):
-        raise MocapInputError(p, f"'joints' must be (T, {len(EVAL_JOINTS)}, 3), got {joints.shape}")
+    p, _, joints = _npz_joints(path, "groundtruth.npz")
     if not np.all(np.isfinite(joints)):
         raise MocapInputError(p, "'joints' has non-finite values")
     return np.arange(joints.shape[0]), joints

@@ -36,7 +36,7 @@ import re
 import numpy as np
 
 from jaxmocap.errors import MocapInputError
-from jaxmocap.io.mocap import INCH, Motion, build_motion, euler_to_matrix
+from jaxmocap.io.mocap import INCH, Motion, build_motion, euler_to_matrix, read_lines
 
 #: Numbers beyond this magnitude are rejected as malformed (they would overflow the kinematics).
 MAX_ABS = 1e12
@@ -97,14 +97,6 @@ class Skeleton:
         return out
 
 
-def _lines(path) -> list[str]:
-    try:
-        with open(path, encoding="utf-8", errors="replace", newline=None) as f:
-            return f.read().splitlines()
-    except OSError as e:
-        raise MocapInputError(path, f"cannot read file: {e.strerror or e}") from None
-
-
 def _floats(path, parts: list[str], n: int, what: str, line: int, allow_inf: bool = False) -> np.ndarray:
     if len(parts) != n:
         raise MocapInputError(path, f"{what} needs {n} numbers, found {len(parts)}", line)
@@ -125,7 +117,7 @@ def _axis_order(path, s: str, line: int) -> str:
 
 def read_asf(path: str | os.PathLike) -> Skeleton:
     """Parse an ASF file. Raises :class:`MocapInputError` naming the file and line."""
-    raw = _lines(path)
+    raw = read_lines(path)
     lines = [(i + 1, ln.split("#", 1)[0].split()) for i, ln in enumerate(raw)]
     lines = [(i, p) for i, p in lines if p]
     err = lambda msg, line: MocapInputError(path, msg, line)
@@ -332,7 +324,7 @@ def read_amc(path: str | os.PathLike, skeleton: Skeleton) -> tuple[dict[str, np.
     Every frame must give every bone with dofs and the root exactly once (``:FULLY-SPECIFIED``), and frame
     numbers must increase by one.
     """
-    raw = _lines(path)
+    raw = read_lines(path)
     err = lambda msg, line: MocapInputError(path, msg, line)
     angle_unit = skeleton.angle_unit
     counts = {"root": len(skeleton.root_order)}

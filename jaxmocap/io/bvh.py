@@ -33,7 +33,15 @@ from typing import NamedTuple
 import numpy as np
 
 from jaxmocap.errors import MocapInputError
-from jaxmocap.io.mocap import INCH, Motion, build_motion, euler_to_matrix, matrix_to_euler, up_axis_matrix
+from jaxmocap.io.mocap import (
+    INCH,
+    Motion,
+    build_motion,
+    euler_to_matrix,
+    matrix_to_euler,
+    read_lines,
+    up_axis_matrix,
+)
 
 #: Metres per unit of the CMU "cgspeed" BVH conversion: the CMU ASF length unit, 1/0.45 inch = 0.05644 m.
 CMU_BVH_SCALE = INCH / 0.45
@@ -140,17 +148,9 @@ class _Tokens:
         return " ".join(parts)
 
 
-def _read_lines(path) -> list[str]:
-    try:
-        with open(path, encoding="utf-8", errors="replace", newline=None) as f:
-            return f.read().splitlines()
-    except OSError as e:
-        raise MocapInputError(path, f"cannot read file: {e.strerror or e}") from None
-
-
 def read_bvh(path: str | os.PathLike) -> BvhData:
     """Parse a BVH file as written (no unit or axis change). Raises :class:`MocapInputError` (file, line)."""
-    lines = _read_lines(path)
+    lines = read_lines(path)
     tk = _Tokens(path, lines)
     motion_idx = tk.fill_until_motion()
     tk.expect("HIERARCHY")

@@ -45,6 +45,7 @@ import numpy as np
 from jaxmocap.errors import MocapInputError
 from jaxmocap.geometry import body as body_mod
 from jaxmocap.io import bvh
+from jaxmocap.io import sequence as seqio
 from jaxmocap.io.mocap import Motion, matrix_to_euler, up_axis_matrix
 
 __all__ = [
@@ -106,21 +107,15 @@ def atomic_write_text(path: str | os.PathLike, text: str, fsync: bool = False) -
 
 
 def atomic_write_npz(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], fsync: bool = False) -> None:
-    """An uncompressed ``.npz`` (readable by :func:`numpy.load`) written atomically."""
-    import zipfile
-
+    """An uncompressed ``.npz`` (readable by :func:`numpy.load`; the bytes of
+    :func:`jaxmocap.io.sequence.write_npz`) written atomically."""
     buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_STORED) as zf:
-        for name, value in arrays.items():
-            member = io.BytesIO()
-            np.lib.format.write_array(member, np.asarray(value), allow_pickle=False)
-            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
-            info.external_attr = 0o644 << 16
-            zf.writestr(info, member.getvalue())
+    seqio.write_npz(buf, arrays)
     atomic_write_bytes(path, buf.getvalue(), fsync)
 
 
 def _read_npz(path: pathlib.Path) -> dict:
+    """Every array of the ``.npz`` at ``path`` (read eagerly, no pickles); raises :class:`MocapInputError`."""
     import zipfile
 
     try:

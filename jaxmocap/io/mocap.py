@@ -49,6 +49,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from jaxmocap.errors import MocapInputError
 from jaxmocap.geometry.body import EVAL_JOINTS
 
 #: ``p_zup = Y_UP_TO_Z_UP @ p_yup``: the cyclic permutation (x, y, z)_yup -> (z, x, y)_zup.
@@ -56,6 +57,16 @@ Y_UP_TO_Z_UP = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 
 #: One inch in metres.
 INCH = 0.0254
+
+
+def read_lines(path) -> list[str]:
+    """The lines of the text file at ``path`` (UTF-8, undecodable bytes replaced, any line ending); raises
+    :class:`MocapInputError` when it cannot be read."""
+    try:
+        with open(path, encoding="utf-8", errors="replace", newline=None) as f:
+            return f.read().splitlines()
+    except OSError as e:
+        raise MocapInputError(path, f"cannot read file: {e.strerror or e}") from None
 
 
 def up_axis_matrix(up_axis: str) -> np.ndarray:
