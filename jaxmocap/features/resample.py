@@ -23,12 +23,6 @@ def _check_factor(factor: int) -> int:
     return int(factor)
 
 
-def downsampled_size(size: tuple[int, int], factor: int) -> tuple[int, int]:
-    """``(w, h)`` → the size ``downsample`` gives: ``(round(w / factor), round(h / factor))`` (half to even)."""
-    factor = _check_factor(factor)
-    return (int(round(size[0] / factor)), int(round(size[1] / factor)))
-
-
 def downsample(image: np.ndarray, factor: int) -> np.ndarray:
     """Area-averaged down-sampling by ``factor`` (1, 2 or 4); see the module docstring for the geometry."""
     factor = _check_factor(factor)

@@ -37,6 +37,7 @@ NOSE, L_SHOULDER, R_SHOULDER, L_ELBOW, R_ELBOW, L_WRIST, R_WRIST = (
 L_HIP, R_HIP, L_KNEE, R_KNEE, L_ANKLE, R_ANKLE, NECK, HEAD_TOP = (
     BODY_25B_INDEX[n] for n in ("LHip", "RHip", "LKnee", "RKnee", "LAnkle", "RAnkle", "UpperNeck", "HeadTop")
 )
+EYES_EARS = tuple(BODY_25B_INDEX[n] for n in ("LEye", "REye", "LEar", "REar"))
 
 SKIN_SEGMENTS = (
     (L_SHOULDER, L_ELBOW),
@@ -132,7 +133,7 @@ def label_frame(
     torso = [k for k in (L_SHOULDER, R_SHOULDER, R_HIP, L_HIP) if ok[k]]
     if len(torso) >= 3:
         cv2.fillConvexPoly(body, cv2.convexHull(np.round(xy[torso]).astype(np.int32)), 255)
-    head = [k for k in (NOSE, NECK, HEAD_TOP, 1, 2, 3, 4) if ok[k]]
+    head = [k for k in (NOSE, NECK, HEAD_TOP, *EYES_EARS) if ok[k]]
     if head:
         c = xy[head].mean(axis=0)
         scale = (
