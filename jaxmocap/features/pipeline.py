@@ -89,6 +89,11 @@ class FeatureConfig:
         if self.blobs and self.skin is None:
             raise ValueError("blobs need a skin model (skin='rgb' or 'hs')")
 
+    @property
+    def mask_cleaning(self) -> dict[str, int]:
+        """The clean-up of every foreground model's mask: ``{"open_size": fg_open, "dilate_size": fg_dilate}``."""
+        return {"open_size": self.fg_open, "dilate_size": self.fg_dilate}
+
 
 class FeatureExtractor:
     """Stateful host pipeline: ``extractor(frames, depth=None) -> Observation``.
@@ -111,19 +116,12 @@ class FeatureExtractor:
         if config.foreground == "gaussian":
             self.backgrounds = [
                 GaussianBackground(
-                    rho=config.gaussian_rho,
-                    k=config.gaussian_k,
-                    shadow=config.shadow,
-                    open_size=config.fg_open,
-                    dilate_size=config.fg_dilate,
+                    rho=config.gaussian_rho, k=config.gaussian_k, shadow=config.shadow, **config.mask_cleaning
                 )
                 for _ in range(self.num_views)
             ]
         elif config.foreground == "mog2":
-            self.backgrounds = [
-                Mog2Background(open_size=config.fg_open, dilate_size=config.fg_dilate)
-                for _ in range(self.num_views)
-            ]
+            self.backgrounds = [Mog2Background(**config.mask_cleaning) for _ in range(self.num_views)]
         self.stereo = None
         if config.stereo_depth or config.blobs:
             if self.num_views < 2:
@@ -144,12 +142,7 @@ class FeatureExtractor:
         )
         self.backgrounds = [
             StaticBackground(
-                f,
-                thresholds=c.static_thresholds,
-                open_size=c.fg_open,
-                dilate_size=c.fg_dilate,
-                shadow=c.shadow,
-                noise_std=c.noise_std,
+                f, thresholds=c.static_thresholds, shadow=c.shadow, noise_std=c.noise_std, **c.mask_cleaning
             )
             for f in frames
         ]
@@ -158,10 +151,7 @@ class FeatureExtractor:
         """Background depth per view (metres, 0 = unknown), full size; for ``foreground="depth"``."""
         c = self.config
         depths = [downsample(np.asarray(d, np.float32), c.downsample) for d in depths]
-        self.backgrounds = [
-            DepthBackground(d, margin=c.depth_margin, open_size=c.fg_open, dilate_size=c.fg_dilate)
-            for d in depths
-        ]
+        self.backgrounds = [DepthBackground(d, margin=c.depth_margin, **c.mask_cleaning) for d in depths]
 
     # --- per frame ------------------------------------------------------------------------------------------
     def _check_frames(self, frames) -> list[np.ndarray]:
