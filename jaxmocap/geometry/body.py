@@ -23,7 +23,8 @@ Presets:
 * ``upper14`` — Fontmarty et al. (IROS 2007): 6 global DOF, 3 per shoulder, 1 per elbow; head rigid with the torso.
 * ``full25``  — Li & Kulić: root translation 3, root rotation 3, neck 3, shoulders 3+3, elbows 1+1, hips 3+3,
   knees 1+1; every angle limited.
-* ``parsec31`` — PARSEC bodytrack's 10-cylinder body (see :mod:`jaxmocap.parsec.model`).
+* ``parsec31`` — PARSEC bodytrack's 10-cylinder body, in millimetres; the PARSEC wing (subpackage ``parsec``)
+  registers it with :func:`register_preset` when it is imported.
 """
 
 from __future__ import annotations
@@ -32,8 +33,9 @@ import dataclasses
 import math
 import os
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from importlib import resources
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -485,18 +487,61 @@ def upper14(dims: Mapping[str, object] | None = None, dtype=jnp.float32) -> Body
     return _upper(dims, dtype, "upper14", root, ())
 
 
+#: The built-in presets (metres): name → ``builder(dims, dtype=...)``.
 PRESETS = {"upper9": upper9, "upper14": upper14, "full25": full25}
 
+#: Presets that a wing of the package registers when it is imported: name → the wing's subpackage.
+WING_PRESETS = {"parsec31": "parsec"}
 
-def build(name: str, dims: Mapping[str, object] | None = None, dtype=jnp.float32) -> BodyModel:
-    """Build a preset by name (``upper9``, ``upper14``, ``full25``, ``parsec31``)."""
-    if name == "parsec31":
-        from jaxmocap.parsec import model as parsec
 
-        return parsec.parsec31(dims, dtype=dtype)
-    if name not in PRESETS:
-        raise ValueError(f"unknown body model {name!r}; choose one of {sorted([*PRESETS, 'parsec31'])}")
-    return PRESETS[name](dims, dtype=dtype)
+class _Registered(NamedTuple):
+    builder: Callable[..., BodyModel]
+    metric_builder: Callable[..., BodyModel] | None
+
+
+_REGISTERED: dict[str, _Registered] = {}
+
+
+def register_preset(
+    name: str, builder: Callable[..., BodyModel], metric_builder: Callable[..., BodyModel] | None = None
+) -> None:
+    """Make ``name`` buildable by :func:`build`.
+
+    ``builder(dims, dtype=...)`` builds the model in the preset's native units; ``metric_builder(dims)`` builds it
+    in metres (what the tracker works in); without one the native units are metres. Registering a name again
+    replaces it; a built-in preset cannot be replaced.
+    """
+    if name in PRESETS:
+        raise ValueError(f"{name!r} is a built-in body model")
+    _REGISTERED[name] = _Registered(builder, metric_builder)
+
+
+def preset_names() -> tuple[str, ...]:
+    """The names :func:`build` accepts now: the built-in presets, then the registered ones."""
+    return (*PRESETS, *_REGISTERED)
+
+
+def build(
+    name: str, dims: Mapping[str, object] | None = None, dtype=jnp.float32, in_metres: bool = False
+) -> BodyModel:
+    """Build a preset by name: a built-in one (``upper9``, ``upper14``, ``full25``; metres) or one registered with
+    :func:`register_preset` (``parsec31`` once the PARSEC wing is imported; millimetres unless ``in_metres``).
+
+    ``in_metres``: the model in metres (the registered metric builder, which takes no ``dtype``); the built-in
+    presets are in metres already.
+    """
+    if name in PRESETS:
+        return PRESETS[name](dims, dtype=dtype)
+    if name in _REGISTERED:
+        entry = _REGISTERED[name]
+        if in_metres and entry.metric_builder is not None:
+            return entry.metric_builder(dims)
+        return entry.builder(dims, dtype=dtype)
+    msg = f"unknown body model {name!r}; choose one of {sorted(preset_names())}"
+    if name in WING_PRESETS:
+        wing = WING_PRESETS[name]
+        msg += f" ({name!r} comes with the {wing} wing: import jaxmocap.{wing} first)"
+    raise ValueError(msg)
 
 
 # ---------------------------------------------------------------------------------------------------------------

@@ -14,10 +14,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxmocap import parsec  # also registers the parsec31 body with jaxmocap.geometry.body
 from jaxmocap.errors import MocapInputError
-from jaxmocap.geometry import body, camera
+from jaxmocap.geometry import body
+from jaxmocap.parsec import cylinders
 from jaxmocap.parsec import likelihood as pl
-from jaxmocap.parsec import model as parsec
 
 DATA = pathlib.Path(__file__).parents[1] / "data" / "parsec"
 PROBE_POSES = ("InitialPose.txt", "poses.txt line 0", "poses.txt line 1")
@@ -259,7 +260,7 @@ def test_cylinder_poses_match_bodytrack(pdata):
             P = np.asarray(parsec.cylinder_poses(shape, jnp.asarray(x)))
             np.testing.assert_allclose(P[..., :3], ref[..., :3], atol=2e-6)  # rotations, printed to 9 digits
             np.testing.assert_allclose(P[..., 3], ref[..., 3], atol=1e-3)  # mm
-            P2 = np.asarray(parsec._scaled_poses(shape, *body.segment_poses(model, jnp.asarray(x))))
+            P2 = np.asarray(cylinders._scaled_poses(shape, *body.segment_poses(model, jnp.asarray(x))))
             np.testing.assert_allclose(P2, P, atol=1e-9)
     # float32, the default: same poses to float32 precision
     P32 = parsec.cylinder_poses(shape, jnp.asarray(pdata["states"]["InitialPose.txt"], jnp.float32))
@@ -268,7 +269,7 @@ def test_cylinder_poses_match_bodytrack(pdata):
 
 def test_fast_sincos_is_accurate():
     x = np.random.default_rng(0).uniform(-60.0, 60.0, 100_000).astype(np.float32)
-    s, c = parsec._sincos(jnp.asarray(x))
+    s, c = cylinders._sincos(jnp.asarray(x))
     np.testing.assert_allclose(np.asarray(s, np.float64), np.sin(x.astype(np.float64)), atol=1.2e-7)
     np.testing.assert_allclose(np.asarray(c, np.float64), np.cos(x.astype(np.float64)), atol=1.2e-7)
 
@@ -279,7 +280,7 @@ def test_fast_sincos_is_accurate():
 
 def test_projection_equals_opencv(pdata):
     cams = pdata["cams"]
-    rig = camera.load_parsec_calibration(pdata["seq"], units="mm")
+    rig = parsec.load_parsec_calibration(pdata["seq"], units="mm")
     X = np.random.default_rng(1).uniform([-800, 500, 0], [800, 1500, 1800], (50, 3))
     with jax.enable_x64(True):
         uv = np.asarray(parsec.project(cams, jnp.asarray(X)))
