@@ -239,7 +239,7 @@ def load_sequence(
         if n == 0:
             raise MocapInputError(os.path.join(root, "CAM1"), "no image0000.bmp in every camera folder")
         frames = n
-    images, fgs = [], []
+    grey, fgs = [], []
     for fr in range(frames):
         ims, fs = [], []
         for k in range(num_cameras):
@@ -259,10 +259,10 @@ def load_sequence(
                     raise MocapInputError(p, f"image is {a.shape[1]}x{a.shape[0]}, expected {w}x{h}")
             ims.append(im)
             fs.append(images.foreground_map(fg))
-        images.append(ims)
+        grey.append(ims)
         fgs.append(fs)
     return ParsecSequence(
-        images=np.asarray(images, dtype=np.uint8),
+        images=np.asarray(grey, dtype=np.uint8),
         foreground=np.asarray(fgs, dtype=np.uint8),
         cameras=cams,
         rig=rig,
