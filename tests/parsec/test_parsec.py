@@ -212,6 +212,27 @@ def test_edge_map_equals_bodytrack(pdata):
 # Body model
 
 
+def test_parsec31_in_metres_is_the_millimetre_body_scaled():
+    """The metric build the tracker asks for (``in_metres=True``): PARSEC's radii and lengths over 1000, the same
+    chain, for no dimensions as for sequenceB's."""
+    mm, m = body.build("parsec31"), body.build("parsec31", in_metres=True)
+    assert m.name == "parsec31" and m.topology == mm.topology
+    for field in (
+        "offset",
+        "shape_start",
+        "shape_end",
+        "radius_start",
+        "radius_end",
+        "joint_point",
+        "rest_pose",
+    ):
+        np.testing.assert_allclose(
+            np.asarray(getattr(m, field)) * 1000.0, getattr(mm, field), rtol=1e-6, atol=1e-4
+        )
+    np.testing.assert_array_equal(m.offset, body.build("parsec31", {}, in_metres=True).offset)
+    np.testing.assert_array_equal(m.offset, parsec.parsec31_in_metres(parsec.default_shape()).offset)
+
+
 def test_parsec31_is_a_body_model(tmp_path):
     m = body.build("parsec31")
     assert m.num_dofs == 31 and m.dof_names == parsec.DOF_NAMES
