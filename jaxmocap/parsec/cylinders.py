@@ -73,11 +73,12 @@ def _times_axis_rotation(cols, axis: tuple, s, c):
 
 
 def _segment_frames(lengths: jnp.ndarray, x: jnp.ndarray) -> list:
-    """The 14 segment frames of :data:`SEGMENT_NAMES` for states ``x (31, *B)`` (batch axes trailing, ``B = ()``
-    for one state): per segment ``(cols, t)`` with ``(3, *B)`` arrays (the hot path).
+    """The 14 segment frames of :data:`~jaxmocap.parsec.model.SEGMENT_NAMES` for states ``x (31, *B)`` (batch
+    axes trailing, ``B = ()`` for one state): per segment ``(cols, t)`` with ``(3, *B)`` arrays (the hot path).
 
-    Same chain as :func:`parsec31`'s ``segment_poses`` (tested), written with the structure of PARSEC's joints:
-    constant rotations permute columns and a rotation about a coordinate axis mixes two columns.
+    Same chain as :func:`~jaxmocap.parsec.model.parsec31`'s ``segment_poses`` (tested), written with the structure
+    of PARSEC's joints: constant rotations permute columns and a rotation about a coordinate axis mixes two
+    columns.
     """
     dt = x.dtype
     batch = x.shape[1:]
@@ -123,7 +124,7 @@ def _cylinder_frames(shape: BodyShape, x: jnp.ndarray):
 def cylinder_poses(dims: BodyShape | Mapping[str, object] | None, x: jnp.ndarray) -> jnp.ndarray:
     """bodytrack's cylinder poses ``(10, 3, 4)`` ``[R·diag(sx, sy, 1) | t]`` (mm) for one state ``x (31,)``.
 
-    ``dims``: the body shape as for :func:`parsec31`. Use ``jax.vmap`` for particles.
+    ``dims``: the body shape as for :func:`~jaxmocap.parsec.model.parsec31`. Use ``jax.vmap`` for particles.
     """
     shape = shape_from_dims(dims)
     x = jnp.asarray(x)
@@ -133,7 +134,8 @@ def cylinder_poses(dims: BodyShape | Mapping[str, object] | None, x: jnp.ndarray
 
 
 def _scaled_poses(shape: BodyShape, R: jnp.ndarray, t: jnp.ndarray) -> jnp.ndarray:
-    """Cylinder poses from :func:`jaxmocap.geometry.body.segment_poses` of :func:`parsec31` (``R (14, 3, 3)``, ``t``)."""
+    """Cylinder poses from :func:`jaxmocap.geometry.body.segment_poses` of :func:`~jaxmocap.parsec.model.parsec31`
+    (``R (14, 3, 3)``, ``t``)."""
     seg = np.asarray(CYLINDER_SEGMENT)
     limbs = jnp.asarray(shape.limbs, R.dtype)
     scale = jnp.stack([limbs[:, 2], limbs[:, 3], jnp.ones_like(limbs[:, 2])], -1)  # (10, 3)

@@ -161,8 +161,9 @@ class ParsecSequence:
     """A bodytrack input folder (``load_sequence``).
 
     ``images``, ``foreground`` ``(F, V, H, W) uint8`` (camera images; foreground maps binarised to {0, 1});
-    ``cameras`` (:class:`jaxmocap.parsec.cameras.Cameras`, mm) and ``rig`` (:class:`jaxmocap.geometry.camera.Rig`, metres); ``shape``;
-    ``initial_pose (31,)``; ``pose_parameters`` (std, min, max); ``frames``: the frame numbers read.
+    ``cameras`` (:class:`jaxmocap.parsec.cameras.Cameras`, mm) and ``rig`` (:class:`jaxmocap.geometry.camera.Rig`,
+    metres); ``shape``; ``initial_pose (31,)``; ``pose_parameters`` (std, min, max); ``frames``: the frame numbers
+    read.
     """
 
     images: np.ndarray

@@ -175,8 +175,8 @@ def shape_to_dims(shape: BodyShape) -> dict[str, float]:
 
 
 def shape_from_dims(dims: BodyShape | Mapping[str, object] | None) -> BodyShape:
-    """A :class:`BodyShape` from a shape (returned as is), a mapping of named dimensions (missing names take the
-    sequenceB values; unknown names raise ``ValueError``) or ``None`` (sequenceB)."""
+    """A :class:`~jaxmocap.parsec.files.BodyShape` from a shape (returned as is), a mapping of named dimensions
+    (missing names take the sequenceB values; unknown names raise ``ValueError``) or ``None`` (sequenceB)."""
     if isinstance(dims, BodyShape):
         return dims
     base = default_shape()
@@ -214,17 +214,18 @@ def cylinder_lengths(shape: BodyShape) -> jnp.ndarray:
 def parsec31(dims: BodyShape | Mapping[str, object] | None = None, dtype=jnp.float32) -> body.BodyModel:
     """PARSEC bodytrack's body as a :class:`jaxmocap.geometry.body.BodyModel` (**millimetres**, 31 DOFs in PARSEC's order).
 
-    ``dims``: a :class:`BodyShape` (from :func:`load_body_shape`), a mapping of named dimensions (see
-    :func:`shape_from_dims`) or ``None`` for sequenceB's body. Gradients flow to the dimensions.
+    ``dims``: a :class:`~jaxmocap.parsec.files.BodyShape` (from :func:`~jaxmocap.parsec.files.load_body_shape`), a
+    mapping of named dimensions (see :func:`shape_from_dims`) or ``None`` for sequenceB's body. Gradients flow to
+    the dimensions.
 
     The kinematic chain reproduces §6.2 exactly (see the module docstring): ``segment_poses(model, x)`` returns
     the unscaled chain matrices of bodytrack for the 14 segments. The flesh primitives are the 10 cylinders as
     circular truncated cones; the elliptic cross-section of the torso and the head (x/y scales) is kept only by
-    :func:`jaxmocap.parsec.cylinders.cylinder_poses`, the cone radius being the area-preserving ``r·sqrt(sx·sy)``. Joint limits are wide
-    (±2π for angles, ±1e5 mm for the translation) because bodytrack applies none (``BodyPose::Valid`` returns
-    true before its checks); :func:`with_limits` sets PoseParameters' bounds. The rest pose is every angle zero
-    with the pelvis raised so that the longer leg's ankle is at z = 0: the body stands upright, left side towards
-    +y, arms stretched horizontally towards −x (PARSEC's zero pose).
+    :func:`~jaxmocap.parsec.cylinders.cylinder_poses`, the cone radius being the area-preserving ``r·sqrt(sx·sy)``.
+    Joint limits are wide (±2π for angles, ±1e5 mm for the translation) because bodytrack applies none
+    (``BodyPose::Valid`` returns true before its checks); :func:`with_limits` sets PoseParameters' bounds. The rest
+    pose is every angle zero with the pelvis raised so that the longer leg's ankle is at z = 0: the body stands
+    upright, left side towards +y, arms stretched horizontally towards −x (PARSEC's zero pose).
     """
     shape = shape_from_dims(dims)
     limbs = jnp.asarray(shape.limbs, dtype)
