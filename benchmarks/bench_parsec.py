@@ -5,7 +5,7 @@ around sequenceB_2's initial pose with PoseParameters' standard deviations, 4 ca
 minimum wall time of ``--repeats`` runs after compilation, the process CPU time, and the same for a NumPy
 implementation of the same likelihood (vectorised over particles, float32 like the C++) run in the same process.
 bodytrack's serial C++ takes about 13 µs per particle and layer on a 2-core machine like the CI machine
-(``../shared/data/parsec/FORMAT.md``, including its noise and resampling).
+(``jaxmocap/parsec/FORMAT.md``, including its noise and resampling).
 
     .venv/bin/python benchmarks/bench_parsec.py [--particles 4000] [--repeats 9] [--devices 2]
 

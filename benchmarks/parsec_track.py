@@ -30,12 +30,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxmocap import parsec
 from jaxmocap.eval import viz
-from jaxmocap.filters import APF
 from jaxmocap.geometry import body as body_mod
-from jaxmocap.geometry import camera
-from jaxmocap.parsec import model as parsec
 from jaxmocap.parsec import track as ptrack
+from jaxmocap.parsec.annealing import parsec_apf
 
 DATA = pathlib.Path(os.environ.get("JAXMOCAP_DATA", "/work/shared/data")) / "parsec"
 RESULTS = pathlib.Path(__file__).resolve().parent / "results"
@@ -47,7 +46,7 @@ def make_runner(seq, num_particles: int, num_layers: int):
     """``run(obs, seed) -> (estimates (F, 31), per-frame step seconds)``, compiled once per configuration."""
     std = jnp.asarray(seq.pose_std, jnp.float32)
     loglik = ptrack.make_loglik(seq.shape, seq.cameras)  # bodytrack drops invalid poses (−1e10)
-    filt = APF.parsec(loglik, std, num_particles, num_layers)
+    filt = parsec_apf(loglik, std, num_particles, num_layers)
 
     @jax.jit
     def start(k, o):
@@ -87,8 +86,8 @@ def save_overlay(seq, obs, path: pathlib.Path, frame: int = 1, seed: int = 0) ->
     """Track frames ``0 … frame`` (1000 × 3, ``seed``) and write the 2×2 montage of ``frame`` to ``path``.
 
     Everything is in PARSEC's millimetres: the estimate (pelvis translation in mm) on ``parsec31(seq.shape)`` (mm),
-    projected through the ``.cal`` cameras loaded in mm (:func:`jaxmocap.geometry.camera.load_parsec_calibration`), the
-    same projection as bodytrack's ``ProjectPoints`` (:func:`jaxmocap.parsec.model.project`, checked here on the joints).
+    projected through the ``.cal`` cameras loaded in mm (:func:`jaxmocap.parsec.files.load_parsec_calibration`), the
+    same projection as bodytrack's ``ProjectPoints`` (:func:`jaxmocap.parsec.cameras.project`, checked here on the joints).
     Returns the mean distance (mm) over the 15 joints between the estimate and bodytrack's pose of ``frame``.
     """
     N, L = 1000, 3
@@ -96,7 +95,7 @@ def save_overlay(seq, obs, path: pathlib.Path, frame: int = 1, seed: int = 0) ->
     x = est[frame]
     model = parsec.parsec31(seq.shape)  # millimetres
     cal = [DATA / "sequenceB_2" / "CALIB" / f"Camera{k + 1}.cal" for k in range(seq.cameras.num_views)]
-    rig = camera.load_parsec_calibration(cal, units="mm")
+    rig = parsec.load_parsec_calibration(cal, units="mm")
     ref = parsec.load_poses(DATA / "reference" / f"poses_{N}p{L}l.txt")[frame]
     J, J_ref = joints_mm(model, np.stack([x, ref]))
     g = {

@@ -588,6 +588,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    import jaxmocap.parsec  # noqa: F401  (the PARSEC wing registers the parsec31 body and the .cal camera reader)
     from jaxmocap import compilation_cache
 
     compilation_cache.enable()  # a second run of a configuration reloads its compiled programs

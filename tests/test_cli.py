@@ -6,6 +6,7 @@ import sys
 import cv2
 import numpy as np
 
+import jaxmocap.parsec  # noqa: F401  (registers the PARSEC .cal camera reader)
 from jaxmocap import cli
 from jaxmocap.geometry import camera
 

@@ -18,10 +18,9 @@ Rules for β, all usable inside ``jit``:
   ``1 - α_target`` of the particles are dead) → ``0`` (uniform weights over the live particles).
 * :func:`corrected_beta` — the thesis' single correction (López Méndez 2009, eq. 6.4):
   ``β(l) = β(l-1) - ε_l (α_target - α(l-1))`` with ``ε_l = 1 / (1 + l)``, kept non-decreasing over the layers.
-* :func:`parsec_beta` — PARSEC bodytrack's bisection (``AnnealingFactor.cpp``): weights ``e_i = exp(β (ll_i - min ll))``
-  over the valid particles, bisection on ``[0, 1000]`` to ``|α - α_target| ≤ 1e-5`` in at most 100 steps, α taken as
-  ``-α_target`` (i.e. "β too large") as soon as some ``β (ll_i - min ll) > 40``, and β = 1 when there is no sign change.
-* fixed sequences (:meth:`Schedule.fixed`, :meth:`Schedule.iros2007`).
+* fixed sequences (:meth:`Schedule.fixed`, :meth:`Schedule.iros2007`);
+* a rule of the caller's (``Schedule(kind="rule", beta_rule=...)``): any jit-able function of the layer's
+  log-likelihoods and the schedule, e.g. PARSEC bodytrack's bisection, which its wing supplies.
 
 The bisection calls :func:`jaxmocap.fit.solvers.bisection_with_value` (no bracket check) through :func:`_bisection`.
 β carries no gradient (``stop_gradient`` on the log-likelihoods it is computed from).
@@ -31,6 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from typing import NamedTuple
 
 import jax
@@ -51,8 +51,6 @@ __all__ = [
     "corrected_beta",
     "ess",
     "iros2007_exponents",
-    "parsec_beta",
-    "parsec_diffusion_scales",
     "solve_beta",
     "survival_rate",
     "tempered_survival_rate",
@@ -61,7 +59,8 @@ __all__ = [
 STATUS_OK = 0
 """The bisection met its tolerance."""
 STATUS_BETA_MAX = 1
-"""No sign change: the survival rate stays above the target up to β_max (β = β_max, or 1 in PARSEC mode)."""
+"""No sign change: the survival rate stays above the target up to β_max (β = β_max; a rule may choose another
+fallback)."""
 STATUS_BETA_ZERO = 2
 """No sign change: the survival rate is below the target already at β = 0 (β = 0)."""
 STATUS_MAXITER = 3
@@ -171,54 +170,6 @@ def solve_beta(
     return BetaSolution(beta, tempered_survival_rate(beta, ll), status)
 
 
-def parsec_beta(
-    loglik: jnp.ndarray,
-    target: float = 0.5,
-    beta_max: float = 1000.0,
-    precision: float = 1e-5,
-    maxiter: int = 100,
-    overflow: float = 40.0,
-) -> BetaSolution:
-    """β as PARSEC bodytrack chooses it (``AnnealingFactor.cpp``; FORMAT.md §6.5).
-
-    ``w_i = ll_i - min ll`` over the valid (finite) particles, ``N`` = number of valid particles,
-    ``α(β) = (Σ e_i)² / Σ e_i² / N`` with ``e_i = exp(β w_i)`` in float32, except that α − α_target is taken as
-    ``-α_target`` as soon as some ``β w_i > overflow`` (the reference's guard against float overflow, which makes the
-    bisection treat such β as too large), and α = +∞ (β too small) when ``(Σ e_i)²`` overflows float32, as the
-    reference's float arithmetic gives. Bisection on ``[0, beta_max]`` until ``|α - α_target| ≤ precision`` or
-    ``maxiter`` steps; without a sign change over the bracket β = 1 (``STATUS_BETA_MAX``).
-    """
-    ll = jax.lax.stop_gradient(jnp.asarray(loglik, jnp.float32))
-    valid = jnp.isfinite(ll)
-    n_valid = jnp.maximum(jnp.sum(valid), 1).astype(jnp.float32)
-    low = jnp.min(jnp.where(valid, ll, jnp.inf))
-    w = jnp.where(valid, ll - low, 0.0)
-
-    big = math.sqrt(float(jnp.finfo(jnp.float32).max))
-
-    def gap(beta, values):
-        v = beta * values
-        e = jnp.where(valid, jnp.exp(jnp.minimum(v, overflow)), 0.0)
-        b, f = jnp.sum(e), jnp.sum(e * e)
-        # the reference's float B*B/F/N: +inf once B*B overflows; written as (B/F)(B/N) so that no intermediate
-        # overflows to inf/inf = NaN whatever order the compiler divides in
-        alpha = jnp.where(b >= big, jnp.inf, (b / f) * (b / n_valid))
-        return jnp.where(jnp.any(valid & (v > overflow)), -target, alpha - target)
-
-    zero = jnp.zeros((), jnp.float32)
-    top = jnp.asarray(beta_max, jnp.float32)
-    gap_lo, gap_hi = gap(zero, w), gap(top, w)
-    beta, value = _bisection(gap, zero, top, precision, maxiter, w)
-    same_sign = ((gap_lo > 0) & (gap_hi > 0)) | ((gap_lo < 0) & (gap_hi < 0))
-    beta = jnp.where(same_sign, 1.0, beta).astype(jnp.float32)
-    status = jnp.where(
-        same_sign, STATUS_BETA_MAX, jnp.where(jnp.abs(value) <= precision, STATUS_OK, STATUS_MAXITER)
-    )
-    return BetaSolution(
-        beta, tempered_survival_rate(beta, jnp.where(valid, ll, -jnp.inf)), status.astype(jnp.int32)
-    )
-
-
 def corrected_beta(
     beta_prev: jnp.ndarray,
     survival_prev: jnp.ndarray,
@@ -239,20 +190,7 @@ def corrected_beta(
     return jnp.maximum(beta, 0.0)
 
 
-def parsec_diffusion_scales(num_layers: int, ratio: float = 0.5) -> tuple[float, ...]:
-    """PARSEC's per-layer diffusion std multipliers, in the order the layers run (FORMAT.md §6.5).
-
-    ``σ_{L-1} = √ratio σ_0``, ``σ_j = √ratio σ_{j+1}``, and the layers run ``k = L-1 … 0``, so the scales are
-    ``(√r, r, r^{3/2}, …, r^{(L-1)/2}, 1)``: for L = 5, ``(0.707, 0.5, 0.354, 0.25, 1.0)``. The last layer uses the
-    full σ.
-    """
-    if num_layers < 1:
-        raise ValueError("num_layers must be ≥ 1")
-    s = math.sqrt(ratio)
-    return tuple(s**j for j in range(1, num_layers)) + (1.0,)
-
-
-_KINDS = ("fixed", "survival", "corrected", "parsec")
+_KINDS = ("fixed", "survival", "corrected", "rule")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -262,14 +200,17 @@ class Schedule:
     Attributes:
       kind: ``"fixed"`` (``betas`` per layer), ``"survival"`` (Deutscher's rule every layer, :func:`solve_beta`),
         ``"corrected"`` (layer 0 from ``betas[0]`` if given, else Deutscher's rule; later layers by
-        :func:`corrected_beta`), ``"parsec"`` (:func:`parsec_beta` every layer).
+        :func:`corrected_beta`), ``"rule"`` (``beta_rule`` every layer).
       num_layers: L.
       betas: per-layer likelihood exponents for ``"fixed"``; ``betas[0]`` is the starting β of ``"corrected"``.
       diffusion_scales: per-layer multipliers of the diffusion std, in run order (default all 1).
       survival_target: α_target.
-      beta_max: bracket ``[0, β_max]`` of the bisection (``"parsec"``: the bracket is ``[0, 1000]`` unless set).
+      beta_max: bracket ``[0, β_max]`` of the bisection.
       tol, maxiter: bisection tolerance on ``|α - α_target|`` and step limit.
       monotone: keep β non-decreasing in ``"corrected"``.
+      beta_rule: for ``"rule"``, ``beta_rule(ll, schedule) -> BetaSolution`` of the layer's ``(N,)`` log-likelihoods
+        (``stop_gradient`` already applied); it reads its parameters (``survival_target``, ``beta_max``, ``tol``,
+        ``maxiter``) from the schedule. A module-level function, so that the schedule stays static and hashable.
     """
 
     kind: str = "survival"
@@ -281,6 +222,7 @@ class Schedule:
     tol: float = 1e-5
     maxiter: int = 100
     monotone: bool = True
+    beta_rule: Callable[[jnp.ndarray, Schedule], BetaSolution] | None = None
 
     def __post_init__(self):
         if self.kind not in _KINDS:
@@ -289,6 +231,8 @@ class Schedule:
             raise ValueError("num_layers must be ≥ 1")
         if self.kind == "fixed" and (self.betas is None or len(self.betas) != self.num_layers):
             raise ValueError("a fixed schedule needs one beta per layer")
+        if (self.kind == "rule") != (self.beta_rule is not None):
+            raise ValueError('a beta_rule goes with kind="rule", and kind="rule" needs one')
         if self.diffusion_scales is not None and len(self.diffusion_scales) != self.num_layers:
             raise ValueError("diffusion_scales needs one entry per layer")
         if not 0.0 < self.survival_target < 1.0:
@@ -345,18 +289,6 @@ class Schedule:
             **kw,
         )
 
-    @classmethod
-    def parsec(cls, num_layers: int) -> Schedule:
-        """PARSEC bodytrack: its diffusion schedule and β bisection on [0, 1000] with the overflow quirk."""
-        return cls(
-            kind="parsec",
-            num_layers=num_layers,
-            diffusion_scales=parsec_diffusion_scales(num_layers),
-            beta_max=1000.0,
-            tol=1e-5,
-            maxiter=100,
-        )
-
 
 IROS2007_LIKELIHOOD_EXPONENTS = (0.1, 0.4, 1.0)
 IROS2007_DYNAMICS_EXPONENTS = (1.0, 4.0, 25.0)
@@ -383,8 +315,8 @@ def choose_beta(
     if schedule.kind == "fixed":
         beta = jnp.asarray(schedule.betas, dtype)[layer]
         return BetaSolution(beta, tempered_survival_rate(beta, ll), jnp.asarray(STATUS_OK, jnp.int32))
-    if schedule.kind == "parsec":
-        return parsec_beta(ll, schedule.survival_target, schedule.beta_max, schedule.tol, schedule.maxiter)
+    if schedule.kind == "rule":
+        return schedule.beta_rule(ll, schedule)
     solve = lambda: solve_beta(
         ll, schedule.survival_target, schedule.beta_max, schedule.tol, schedule.maxiter
     )

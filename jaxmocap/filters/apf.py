@@ -18,8 +18,8 @@ Per frame, ``L`` layers ``l = 0 … L-1`` (0 runs first: broadest diffusion, sma
 (feature-based annealing, López Méndez 2009 eq. 5.2: ``λ_c(β, l)``): signature
 ``loglik_batch(X (N, D), observation, layer) -> (N,)``; a likelihood that ignores ``layer`` gives the plain APF.
 
-PARSEC mode (:meth:`APF.parsec`): PARSEC's diffusion schedule and β bisection on ``[0, 1000]`` with the overflow
-quirk, multinomial resampling, plain weighted mean of the final set, no motion model beyond the annealing diffusion.
+A schedule may carry its own β rule (``Schedule(kind="rule", beta_rule=...)``); the PARSEC wing builds its
+bodytrack-mode filter this way (its schedule, multinomial resampling, plain weighted mean of the final set).
 
 Recovery: a layer in which no log-likelihood is finite never yields NaN: its particles are replaced (``"reinit"``:
 around the previous frame's estimate with std ``recovery_widen · Δ``; ``"uniform"``: the proposed particles kept)
@@ -99,14 +99,6 @@ class APF:
     @property
     def num_layers(self) -> int:
         return self.schedule.num_layers
-
-    @classmethod
-    def parsec(
-        cls, loglik_batch: Callable, pose_std: jnp.ndarray, num_particles: int, num_layers: int, **kw
-    ) -> APF:
-        """PARSEC bodytrack's annealed filter (FORMAT.md §6.5) with ``pose_std`` = its ``PoseStd`` σ_0."""
-        kw.setdefault("resampling", "multinomial")
-        return cls(loglik_batch, pose_std, num_particles, Schedule.parsec(num_layers), **kw)
 
     def init(self, key: jax.Array, mean: jnp.ndarray, std: jnp.ndarray | None = None) -> State:
         """``num_particles`` particles ``mean + std ⊙ ε`` (``std`` defaults to Δ), uniform weights."""

@@ -23,7 +23,8 @@ Presets:
 * ``upper14`` — Fontmarty et al. (IROS 2007): 6 global DOF, 3 per shoulder, 1 per elbow; head rigid with the torso.
 * ``full25``  — Li & Kulić: root translation 3, root rotation 3, neck 3, shoulders 3+3, elbows 1+1, hips 3+3,
   knees 1+1; every angle limited.
-* ``parsec31`` — PARSEC bodytrack's 10-cylinder body (see :mod:`jaxmocap.parsec.model`).
+* ``parsec31`` — PARSEC bodytrack's 10-cylinder body, in millimetres; the PARSEC wing (subpackage ``parsec``)
+  registers it with :func:`register_preset` when it is imported.
 """
 
 from __future__ import annotations
@@ -32,8 +33,9 @@ import dataclasses
 import math
 import os
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from importlib import resources
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -302,88 +304,67 @@ def _translation_dofs(prefix: str, height=0.0):
     ]
 
 
+def _ball_dofs(prefix: str, rx, ry, rz) -> list:
+    """Three revolute DOFs ``{prefix}_rx, _ry, _rz`` about x, y, z with limits ``(lower, upper)`` each."""
+    return [
+        (f"{prefix}_r{a}", "R", axis, *lim)
+        for a, axis, lim in zip("xyz", (X, Y, Z), (rx, ry, rz), strict=True)
+    ]
+
+
+def _limb(b: _Builder, dims, side: str, parent: str, attach, parts, dofs, joint_names):
+    """Two cones hanging along −z: ``{side}_{parts[0]}`` at ``attach`` in ``parent`` with ``dofs[0]`` and
+    ``{side}_{parts[1]}`` at its far end with ``dofs[1]``; their lengths and radii are the ``{part}_length``,
+    ``{part}_radius_top`` and ``{part}_radius_bottom`` dimensions. Joints ``{side}_{joint_names[k]}`` at the
+    origins of the two segments and at the far end of the second."""
+    upper, lower = parts
+    L1 = _dim(dims, f"{upper}_length", side)
+    L2 = _dim(dims, f"{lower}_length", side)
+    segments = ((upper, parent, attach, L1), (lower, f"{side}_{upper}", b.vec(0.0, 0.0, -L1), L2))
+    for (part, par, at, L), seg_dofs in zip(segments, dofs, strict=True):
+        cone = (
+            SHAPE_CONE,
+            b.vec(0.0, 0.0, 0.0),
+            b.vec(0.0, 0.0, -L),
+            _dim(dims, f"{part}_radius_top", side),
+            _dim(dims, f"{part}_radius_bottom", side),
+        )
+        b.segment(f"{side}_{part}", par, at, seg_dofs, cone)
+    ends = ((upper, 0.0), (lower, 0.0), (lower, -L2))
+    for name, (part, z) in zip(joint_names, ends, strict=True):
+        b.joint(f"{side}_{name}", f"{side}_{part}", b.vec(0.0, 0.0, z))
+
+
 def _arm(b: _Builder, dims, side: str, parent: str, shoulder_point, shoulder_dofs: bool = True):
     """Upper arm (shoulder x, y, z) and forearm (elbow about −y: positive flexion brings the hand forward)."""
     s = 1.0 if side == "left" else -1.0
-    L1 = _dim(dims, "upper_arm_length", side)
-    L2 = _dim(dims, "forearm_length", side)
     # abduction about +x lifts the left arm towards +y; the right arm mirrors it.
     abd = (-30 * _DEG, 170 * _DEG) if s > 0 else (-170 * _DEG, 30 * _DEG)
-    dofs = [
-        (f"{side}_shoulder_rx", "R", X, *abd),
-        (f"{side}_shoulder_ry", "R", Y, -170 * _DEG, 60 * _DEG),
-        (f"{side}_shoulder_rz", "R", Z, -90 * _DEG, 90 * _DEG),
-    ]
-    b.segment(
-        f"{side}_upper_arm",
-        parent,
-        shoulder_point,
-        dofs if shoulder_dofs else (),
-        (
-            SHAPE_CONE,
-            b.vec(0.0, 0.0, 0.0),
-            b.vec(0.0, 0.0, -L1),
-            _dim(dims, "upper_arm_radius_top", side),
-            _dim(dims, "upper_arm_radius_bottom", side),
-        ),
-    )
-    b.segment(
-        f"{side}_forearm",
-        f"{side}_upper_arm",
-        b.vec(0.0, 0.0, -L1),
-        [(f"{side}_elbow", "R", NEG_Y, 0.0, 150 * _DEG)],
-        (
-            SHAPE_CONE,
-            b.vec(0.0, 0.0, 0.0),
-            b.vec(0.0, 0.0, -L2),
-            _dim(dims, "forearm_radius_top", side),
-            _dim(dims, "forearm_radius_bottom", side),
-        ),
-    )
-    b.joint(f"{side}_shoulder", f"{side}_upper_arm", b.vec(0.0, 0.0, 0.0))
-    b.joint(f"{side}_elbow", f"{side}_forearm", b.vec(0.0, 0.0, 0.0))
-    b.joint(f"{side}_wrist", f"{side}_forearm", b.vec(0.0, 0.0, -L2))
+    dofs = _ball_dofs(f"{side}_shoulder", abd, (-170 * _DEG, 60 * _DEG), (-90 * _DEG, 90 * _DEG))
+    elbow = [(f"{side}_elbow", "R", NEG_Y, 0.0, 150 * _DEG)]
+    parts, joints = ("upper_arm", "forearm"), ("shoulder", "elbow", "wrist")
+    _limb(b, dims, side, parent, shoulder_point, parts, (dofs if shoulder_dofs else (), elbow), joints)
 
 
 def _leg(b: _Builder, dims, side: str, parent: str, hip_point):
     """Thigh (hip x, y, z) and shin (knee about +y: positive flexion moves the foot backwards)."""
     s = 1.0 if side == "left" else -1.0
-    L1 = _dim(dims, "thigh_length", side)
-    L2 = _dim(dims, "shin_length", side)
     abd = (-30 * _DEG, 70 * _DEG) if s > 0 else (-70 * _DEG, 30 * _DEG)
-    b.segment(
-        f"{side}_thigh",
-        parent,
-        hip_point,
-        [
-            (f"{side}_hip_rx", "R", X, *abd),
-            (f"{side}_hip_ry", "R", Y, -120 * _DEG, 30 * _DEG),
-            (f"{side}_hip_rz", "R", Z, -60 * _DEG, 60 * _DEG),
-        ],
-        (
-            SHAPE_CONE,
-            b.vec(0.0, 0.0, 0.0),
-            b.vec(0.0, 0.0, -L1),
-            _dim(dims, "thigh_radius_top", side),
-            _dim(dims, "thigh_radius_bottom", side),
-        ),
+    hip = _ball_dofs(f"{side}_hip", abd, (-120 * _DEG, 30 * _DEG), (-60 * _DEG, 60 * _DEG))
+    knee = [(f"{side}_knee", "R", Y, 0.0, 150 * _DEG)]
+    _limb(b, dims, side, parent, hip_point, ("thigh", "shin"), (hip, knee), ("hip", "knee", "ankle"))
+
+
+def _torso(b: _Builder, dims, root_dofs, bottom, top):
+    """The root segment ``torso`` at the origin: a cone along z from height ``bottom`` to ``top``."""
+    cone = (
+        SHAPE_CONE,
+        b.vec(0.0, 0.0, bottom),
+        b.vec(0.0, 0.0, top),
+        _dim(dims, "torso_radius_bottom"),
+        _dim(dims, "torso_radius_top"),
     )
-    b.segment(
-        f"{side}_shin",
-        f"{side}_thigh",
-        b.vec(0.0, 0.0, -L1),
-        [(f"{side}_knee", "R", Y, 0.0, 150 * _DEG)],
-        (
-            SHAPE_CONE,
-            b.vec(0.0, 0.0, 0.0),
-            b.vec(0.0, 0.0, -L2),
-            _dim(dims, "shin_radius_top", side),
-            _dim(dims, "shin_radius_bottom", side),
-        ),
-    )
-    b.joint(f"{side}_hip", f"{side}_thigh", b.vec(0.0, 0.0, 0.0))
-    b.joint(f"{side}_knee", f"{side}_shin", b.vec(0.0, 0.0, 0.0))
-    b.joint(f"{side}_ankle", f"{side}_shin", b.vec(0.0, 0.0, -L2))
+    b.segment("torso", None, b.vec(0.0, 0.0, 0.0), root_dofs, cone)
 
 
 def _head_shape(b: _Builder, dims):
@@ -402,19 +383,7 @@ def full25(dims: Mapping[str, object] | None = None, dtype=jnp.float32) -> BodyM
         ("root_ry", "R", Y, -90 * _DEG, 90 * _DEG),
         ("root_rx", "R", X, -90 * _DEG, 90 * _DEG),
     ]
-    b.segment(
-        "torso",
-        None,
-        b.vec(0.0, 0.0, 0.0),
-        root_dofs,
-        (
-            SHAPE_CONE,
-            b.vec(0.0, 0.0, 0.0),
-            b.vec(0.0, 0.0, T),
-            _dim(dims, "torso_radius_bottom"),
-            _dim(dims, "torso_radius_top"),
-        ),
-    )
+    _torso(b, dims, root_dofs, 0.0, T)
     head_shape, head_centre = _head_shape(b, dims)
     b.segment(
         "head",
@@ -444,19 +413,7 @@ def _upper(dims, dtype, model_name: str, root_dofs, neck_dofs) -> BodyModel:
     dims = dims or {}
     b = _Builder(dtype=dtype)
     T = _dim(dims, "torso_length")
-    b.segment(
-        "torso",
-        None,
-        b.vec(0.0, 0.0, 0.0),
-        root_dofs,
-        (
-            SHAPE_CONE,
-            b.vec(0.0, 0.0, -T),
-            b.vec(0.0, 0.0, 0.0),
-            _dim(dims, "torso_radius_bottom"),
-            _dim(dims, "torso_radius_top"),
-        ),
-    )
+    _torso(b, dims, root_dofs, -T, 0.0)
     head_shape, head_centre = _head_shape(b, dims)
     b.segment("head", "torso", b.vec(0.0, 0.0, 0.0), neck_dofs, head_shape)
     b.joint("root", "torso", b.vec(0.0, 0.0, -T))
@@ -485,18 +442,61 @@ def upper14(dims: Mapping[str, object] | None = None, dtype=jnp.float32) -> Body
     return _upper(dims, dtype, "upper14", root, ())
 
 
+#: The built-in presets (metres): name → ``builder(dims, dtype=...)``.
 PRESETS = {"upper9": upper9, "upper14": upper14, "full25": full25}
 
+#: Presets that a wing of the package registers when it is imported: name → the wing's subpackage.
+WING_PRESETS = {"parsec31": "parsec"}
 
-def build(name: str, dims: Mapping[str, object] | None = None, dtype=jnp.float32) -> BodyModel:
-    """Build a preset by name (``upper9``, ``upper14``, ``full25``, ``parsec31``)."""
-    if name == "parsec31":
-        from jaxmocap.parsec import model as parsec
 
-        return parsec.parsec31(dims, dtype=dtype)
-    if name not in PRESETS:
-        raise ValueError(f"unknown body model {name!r}; choose one of {sorted([*PRESETS, 'parsec31'])}")
-    return PRESETS[name](dims, dtype=dtype)
+class _Registered(NamedTuple):
+    builder: Callable[..., BodyModel]
+    metric_builder: Callable[..., BodyModel] | None
+
+
+_REGISTERED: dict[str, _Registered] = {}
+
+
+def register_preset(
+    name: str, builder: Callable[..., BodyModel], metric_builder: Callable[..., BodyModel] | None = None
+) -> None:
+    """Make ``name`` buildable by :func:`build`.
+
+    ``builder(dims, dtype=...)`` builds the model in the preset's native units; ``metric_builder(dims)`` builds it
+    in metres (what the tracker works in); without one the native units are metres. Registering a name again
+    replaces it; a built-in preset cannot be replaced.
+    """
+    if name in PRESETS:
+        raise ValueError(f"{name!r} is a built-in body model")
+    _REGISTERED[name] = _Registered(builder, metric_builder)
+
+
+def preset_names() -> tuple[str, ...]:
+    """The names :func:`build` accepts now: the built-in presets, then the registered ones."""
+    return (*PRESETS, *_REGISTERED)
+
+
+def build(
+    name: str, dims: Mapping[str, object] | None = None, dtype=jnp.float32, in_metres: bool = False
+) -> BodyModel:
+    """Build a preset by name: a built-in one (``upper9``, ``upper14``, ``full25``; metres) or one registered with
+    :func:`register_preset` (``parsec31`` once the PARSEC wing is imported; millimetres unless ``in_metres``).
+
+    ``in_metres``: the model in metres (the registered metric builder, which takes no ``dtype``); the built-in
+    presets are in metres already.
+    """
+    if name in PRESETS:
+        return PRESETS[name](dims, dtype=dtype)
+    if name in _REGISTERED:
+        entry = _REGISTERED[name]
+        if in_metres and entry.metric_builder is not None:
+            return entry.metric_builder(dims)
+        return entry.builder(dims, dtype=dtype)
+    msg = f"unknown body model {name!r}; choose one of {sorted(preset_names())}"
+    if name in WING_PRESETS:
+        wing = WING_PRESETS[name]
+        msg += f" ({name!r} comes with the {wing} wing: import jaxmocap.{wing} first)"
+    raise ValueError(msg)
 
 
 # ---------------------------------------------------------------------------------------------------------------

@@ -1,27 +1,36 @@
 """PARSEC bodytrack sequence folders as a tracking input (``jaxmocap track SEQUENCE_B``).
 
-A bodytrack input folder (``../shared/data/parsec/FORMAT.md`` §3) holds ``CALIB/Camera<k>.cal`` (Bouguet
+A bodytrack input folder (``jaxmocap/parsec/FORMAT.md`` §3) holds ``CALIB/Camera<k>.cal`` (Bouguet
 cameras, mm), ``CAM<k>/imageNNNN.bmp`` (8-bit grey images), ``FG<k>/imageNNNN.bmp`` (foreground maps),
 ``BodyShapeParameters.txt`` (the 10-cylinder body), ``InitialPose.txt`` (the 31-value start state: radians, and
 the pelvis translation in **mm**) and ``PoseParameters.txt`` (per-DOF σ_0, min, max). :func:`find_parsec_folder`
 recognises such a folder (or a folder holding exactly one), :class:`ParsecSource` reads it frame by frame: per
-frame the likelihood's observation (bodytrack's edge maps and binary foreground maps, :mod:`jaxmocap.parsec.model`).
+frame the likelihood's observation (bodytrack's edge maps and binary foreground maps, :mod:`jaxmocap.parsec.images`);
+:func:`load_sequence` reads a whole folder at once (:class:`ParsecSequence`).
 
 Everything here stays in PARSEC's millimetres; :mod:`jaxmocap.parsec.track` converts its outputs to metres.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import pathlib
+import re
 
 import numpy as np
 
 from jaxmocap.errors import MocapInputError
-from jaxmocap.geometry import camera
-from jaxmocap.parsec import model as parsec
+from jaxmocap.parsec import cameras, files, images
 
-__all__ = ["NOMINAL_FPS", "ParsecSource", "find_parsec_folder", "is_parsec_folder"]
+__all__ = [
+    "NOMINAL_FPS",
+    "ParsecSequence",
+    "ParsecSource",
+    "find_parsec_folder",
+    "is_parsec_folder",
+    "load_sequence",
+]
 
 #: bodytrack's input sets do not state a frame rate; the outputs' time stamps use this one.
 NOMINAL_FPS = 30.0
@@ -58,8 +67,8 @@ def is_parsec_folder(path: str | os.PathLike | None) -> bool:
 class ParsecSource:
     """A bodytrack sequence folder read frame by frame.
 
-    Attributes: ``root`` (the sequence folder), ``cameras`` (:class:`jaxmocap.parsec.model.Cameras`, mm), ``rig``
-    (:class:`jaxmocap.geometry.camera.Rig`, metres), ``shape`` (:class:`jaxmocap.parsec.model.BodyShape`, mm),
+    Attributes: ``root`` (the sequence folder), ``cameras`` (:class:`jaxmocap.parsec.cameras.Cameras`, mm), ``rig``
+    (:class:`jaxmocap.geometry.camera.Rig`, metres), ``shape`` (:class:`jaxmocap.parsec.files.BodyShape`, mm),
     ``initial_pose (31,)`` (radians, mm), ``pose_parameters`` (σ_0, min, max), ``num_frames`` (frames
     ``0 … num_frames−1`` present in every ``CAM<k>`` and ``FG<k>``), ``fps`` (:data:`NOMINAL_FPS`),
     ``view_names``, ``description``. Every defect of the folder raises :class:`~jaxmocap.errors.MocapInputError`
@@ -88,18 +97,18 @@ class ParsecSource:
         for f in _TEXT_FILES:
             if not (root / f).is_file():
                 raise MocapInputError(root / f, "missing (every bodytrack sequence has it)")
-        self.cameras = parsec.cameras_from_rig(camera.load_parsec_calibration(cal_files, units="mm"), "mm")
-        self.rig = camera.load_parsec_calibration(cal_files, units="m")
-        self.shape = parsec.load_body_shape(root / "BodyShapeParameters.txt")
-        self.initial_pose = parsec.load_pose(root / "InitialPose.txt")
-        self.pose_parameters = parsec.load_pose_parameters(root / "PoseParameters.txt")
+        self.cameras = cameras.cameras_from_rig(files.load_parsec_calibration(cal_files, units="mm"), "mm")
+        self.rig = files.load_parsec_calibration(cal_files, units="m")
+        self.shape = files.load_body_shape(root / "BodyShapeParameters.txt")
+        self.initial_pose = files.load_pose(root / "InitialPose.txt")
+        self.pose_parameters = files.load_pose_parameters(root / "PoseParameters.txt")
         available = None
         for k in range(n):
             for kind in ("CAM", "FG"):
                 d = root / f"{kind}{k + 1}"
                 if not d.is_dir():
                     raise MocapInputError(d, f"image folder missing (the sequence has {n} cameras)")
-                nums = set(parsec._frame_numbers(os.fspath(d)))
+                nums = set(_frame_numbers(os.fspath(d)))
                 if 0 not in nums:
                     raise MocapInputError(d / "image0000.bmp", "missing: frames are numbered from 0")
                 available = nums if available is None else available & nums
@@ -120,7 +129,7 @@ class ParsecSource:
             pairs = []
             for kind in ("CAM", "FG"):
                 p = self.root / f"{kind}{k + 1}" / name
-                a = parsec.load_image(p)
+                a = images.load_image(p)
                 w, h = (
                     self.rig.image_size[k] if self.rig.image_size[k] != (0, 0) else (a.shape[1], a.shape[0])
                 )
@@ -128,7 +137,7 @@ class ParsecSource:
                     raise MocapInputError(p, f"image is {a.shape[1]}x{a.shape[0]}, expected {w}x{h}")
                 pairs.append(a)
             ims.append(pairs[0])
-            fgs.append(parsec.foreground_map(pairs[1]))
+            fgs.append(images.foreground_map(pairs[1]))
         return np.stack(ims), np.stack(fgs)
 
     def observation(self, t: int):
@@ -137,7 +146,129 @@ class ParsecSource:
         from jaxmocap.parsec import likelihood as parsec_likelihood
 
         ims, fgs = self.images(t)
-        return parsec_likelihood.observation(np.stack([parsec.edge_map(im) for im in ims]), fgs)
+        return parsec_likelihood.observation(np.stack([images.edge_map(im) for im in ims]), fgs)
 
     def close(self) -> None:
         pass
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Whole sequences in memory
+
+
+@dataclasses.dataclass
+class ParsecSequence:
+    """A bodytrack input folder (``load_sequence``).
+
+    ``images``, ``foreground`` ``(F, V, H, W) uint8`` (camera images; foreground maps binarised to {0, 1});
+    ``cameras`` (:class:`jaxmocap.parsec.cameras.Cameras`, mm) and ``rig`` (:class:`jaxmocap.geometry.camera.Rig`,
+    metres); ``shape``; ``initial_pose (31,)``; ``pose_parameters`` (std, min, max); ``frames``: the frame numbers
+    read.
+    """
+
+    images: np.ndarray
+    foreground: np.ndarray
+    cameras: cameras.Cameras
+    rig: object
+    shape: files.BodyShape
+    initial_pose: np.ndarray
+    pose_parameters: files.PoseParameters
+    frames: tuple[int, ...]
+
+    @property
+    def pose_std(self) -> np.ndarray:
+        return self.pose_parameters.std
+
+    def edge_maps(self, frame: int) -> np.ndarray:
+        """bodytrack's edge maps ``(V, H, W) uint8`` of frame index ``frame`` (0-based into ``frames``)."""
+        return np.stack([images.edge_map(im) for im in self.images[frame]])
+
+    def observation(self, frame: int):
+        """The likelihood's :class:`jaxmocap.parsec.likelihood.Observation` of frame index ``frame``."""
+        from jaxmocap.parsec import likelihood as parsec_likelihood
+
+        return parsec_likelihood.observation(self.edge_maps(frame), self.foreground[frame])
+
+
+def _frame_numbers(folder: str) -> list[int]:
+    out = []
+    for f in os.listdir(folder):
+        m = re.fullmatch(r"image(\d{4,})\.bmp", f, flags=re.IGNORECASE)
+        if m:
+            out.append(int(m.group(1)))
+    return sorted(out)
+
+
+def load_sequence(
+    path: str | os.PathLike, frames: int | None = None, num_cameras: int | None = None
+) -> ParsecSequence:
+    """Read a bodytrack sequence folder (``CALIB/Camera<k>.cal``, ``CAM<k>/imageNNNN.bmp``, ``FG<k>/…``,
+    ``BodyShapeParameters.txt``, ``InitialPose.txt``, ``PoseParameters.txt``).
+
+    ``num_cameras``: default all ``Camera<k>.cal`` from 1 up; ``frames``: read the first ``frames`` frames
+    (default: every frame present in all cameras, which must be consecutive from 0).
+    """
+    root = os.fspath(path)
+    if not os.path.isdir(root):
+        raise MocapInputError(root, "not a sequence folder")
+    calib = os.path.join(root, "CALIB")
+    if num_cameras is None:
+        num_cameras = 0
+        while os.path.isfile(os.path.join(calib, f"Camera{num_cameras + 1}.cal")):
+            num_cameras += 1
+        if num_cameras == 0:
+            raise MocapInputError(calib, "no CALIB/Camera1.cal")
+    cal_files = [os.path.join(calib, f"Camera{k + 1}.cal") for k in range(num_cameras)]
+    for f in cal_files:
+        if not os.path.isfile(f):
+            raise MocapInputError(f, "camera calibration file missing")
+    rig_mm = files.load_parsec_calibration(cal_files, units="mm")
+    rig = files.load_parsec_calibration(cal_files, units="m")
+    cams = cameras.cameras_from_rig(rig_mm, units="mm")
+    available = None
+    for k in range(num_cameras):
+        for kind in ("CAM", "FG"):
+            d = os.path.join(root, f"{kind}{k + 1}")
+            if not os.path.isdir(d):
+                raise MocapInputError(d, "image folder missing")
+            nums = set(_frame_numbers(d))
+            available = nums if available is None else available & nums
+    if frames is None:
+        n = 0
+        while n in available:
+            n += 1
+        if n == 0:
+            raise MocapInputError(os.path.join(root, "CAM1"), "no image0000.bmp in every camera folder")
+        frames = n
+    grey, fgs = [], []
+    for fr in range(frames):
+        ims, fs = [], []
+        for k in range(num_cameras):
+            name = f"image{fr:04d}.bmp"
+            im = images.load_image(os.path.join(root, f"CAM{k + 1}", name))
+            fg = images.load_image(os.path.join(root, f"FG{k + 1}", name))
+            w, h = (
+                rig.image_size[k]
+                if rig.image_size and rig.image_size[k] != (0, 0)
+                else (im.shape[1], im.shape[0])
+            )
+            for p, a in (
+                (os.path.join(root, f"CAM{k + 1}", name), im),
+                (os.path.join(root, f"FG{k + 1}", name), fg),
+            ):
+                if a.shape != (h, w):
+                    raise MocapInputError(p, f"image is {a.shape[1]}x{a.shape[0]}, expected {w}x{h}")
+            ims.append(im)
+            fs.append(images.foreground_map(fg))
+        grey.append(ims)
+        fgs.append(fs)
+    return ParsecSequence(
+        images=np.asarray(grey, dtype=np.uint8),
+        foreground=np.asarray(fgs, dtype=np.uint8),
+        cameras=cams,
+        rig=rig,
+        shape=files.load_body_shape(os.path.join(root, "BodyShapeParameters.txt")),
+        initial_pose=files.load_pose(os.path.join(root, "InitialPose.txt")),
+        pose_parameters=files.load_pose_parameters(os.path.join(root, "PoseParameters.txt")),
+        frames=tuple(range(frames)),
+    )

@@ -1,10 +1,10 @@
-"""PARSEC bodytrack's image likelihood (``../shared/data/parsec/FORMAT.md`` §6.4) as a pure JAX function of one
+"""PARSEC bodytrack's image likelihood (``jaxmocap/parsec/FORMAT.md`` §6.4) as a pure JAX function of one
 particle, and its fast batched form.
 
-For a state ``x`` the 10 cylinders (:func:`jaxmocap.parsec.model.cylinder_poses`) are projected into every camera
-(:func:`jaxmocap.parsec.model.cylinder_corners`, corners P0..P3) and sampled in two images per camera:
+For a state ``x`` the 10 cylinders (:func:`jaxmocap.parsec.cylinders.cylinder_poses`) are projected into every camera
+(:func:`jaxmocap.parsec.cylinders.cylinder_corners`, corners P0..P3) and sampled in two images per camera:
 
-* **edge term** on the edge map ``E`` (:func:`jaxmocap.parsec.model.edge_map`): along the two long sides P0→P1 and
+* **edge term** on the edge map ``E`` (:func:`jaxmocap.parsec.images.edge_map`): along the two long sides P0→P1 and
   P2→P3, each with ``n = max(int(|side|/5 + 0.5), 4)`` and ``n + 1`` samples at ``t = 0, d, 2d, …`` (``d = 1/n``,
   ``t`` accumulated in float32 as bodytrack does), each sample adds ``(255 − E(x, y))²``;
   ``ErrEdge = Σ (255 − E)² / 255² / (number of edge samples inside the images)``;
@@ -49,8 +49,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmocap.parsec import model as parsec
-from jaxmocap.parsec.model import BodyShape, Cameras
+from jaxmocap.parsec import cylinders
+from jaxmocap.parsec.cameras import Cameras, _trail
+from jaxmocap.parsec.files import NUM_DOFS, NUM_PARTS, BodyShape
+from jaxmocap.parsec.model import cylinder_lengths
 
 __all__ = [
     "Config",
@@ -101,7 +103,7 @@ class Config:
 
     def __post_init__(self):
         parts = sorted(p for g in self.groups for p in g)
-        if parts != list(range(parsec.NUM_PARTS)):
+        if parts != list(range(NUM_PARTS)):
             raise ValueError("groups must list every part 0..9 exactly once")
         if len(self.inside_cols) != len(self.groups):
             raise ValueError("inside_cols needs one entry per group")
@@ -170,9 +172,7 @@ def _static_sphere_counts(shape: BodyShape) -> dict[int, int] | None:
     """Sphere counts of the tested parts when the shape is concrete (not traced), else ``None``."""
     try:
         limbs = np.asarray(shape.limbs, dtype=np.float64)
-        length = np.asarray(
-            parsec.cylinder_lengths(BodyShape(np.asarray(shape.limbs), np.asarray(shape.lengths)))
-        )
+        length = np.asarray(cylinder_lengths(BodyShape(np.asarray(shape.limbs), np.asarray(shape.lengths))))
     except (jax.errors.ConcretizationTypeError, jax.errors.TracerArrayConversionError):
         return None
     parts = {p for pair in INTERSECTION_PAIRS for p in pair}
@@ -188,7 +188,7 @@ def _valid_from_frames(shape: BodyShape, A, t) -> jnp.ndarray:
     nb = t[0].ndim - 1
     limbs = jnp.asarray(shape.limbs, dt)
     bottom, top = limbs[:, 0], limbs[:, 1]
-    length = parsec.cylinder_lengths(shape).astype(dt)
+    length = cylinder_lengths(shape).astype(dt)
     static = _static_sphere_counts(shape)
 
     def spheres(i):
@@ -196,8 +196,8 @@ def _valid_from_frames(shape: BodyShape, A, t) -> jnp.ndarray:
         shape: 21 spheres, masked)."""
         k = _sphere_count(length[i], jnp.maximum(bottom[i], top[i]))
         idx = jnp.arange(21, dtype=dt)
-        alpha = parsec._trail(idx * (1.0 / jnp.maximum(k, 1.0)), nb)
-        mask = parsec._trail((idx <= k) & (k > 0), nb)
+        alpha = _trail(idx * (1.0 / jnp.maximum(k, 1.0)), nb)
+        mask = _trail((idx <= k) & (k > 0), nb)
         c = [t[j][i][None] + alpha * (A[j][2][i] * length[i])[None] for j in range(3)]
         dr = top[i] - bottom[i]
         return c, (bottom[i] + alpha * dr) / jnp.sqrt(1.0 + (dr / length[i]) ** 2), mask
@@ -251,9 +251,9 @@ def corners(shape: BodyShape, cams: Cameras, x: jnp.ndarray) -> tuple[jnp.ndarra
     """Cylinder poses ``(10, 3, 4)`` and projected corners ``(V, 10, 4, 2)`` of one state ``x (31,)`` (dtype of
     ``x``)."""
     x = jnp.asarray(x)
-    A, t = parsec._cylinder_frames(shape, x)
+    A, t = cylinders._cylinder_frames(shape, x)
     rows = [jnp.stack([A[i][0], A[i][1], A[i][2], t[i]], -1) for i in range(3)]
-    return jnp.stack(rows, 1), parsec._corners(shape, cams, A, t)
+    return jnp.stack(rows, 1), cylinders._corners(shape, cams, A, t)
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -302,7 +302,7 @@ def _edge_group(uv, flat_edge, config: Config, W: int, H: int):
     n, finite = _count(jnp.sqrt(sx * sx + sy * sy), config.edge_step, config.max_edge_n)
     d = 1.0 / n
     count = jnp.where(finite, n + 1.0, 0.0)
-    offset = jnp.broadcast_to(parsec._trail(jnp.arange(V, dtype=uv.dtype) * (W * H), nb + 2), px.shape)
+    offset = jnp.broadcast_to(_trail(jnp.arange(V, dtype=uv.dtype) * (W * H), nb + 2), px.shape)
     offset = offset + jnp.zeros_like(px)  # a full array: no broadcast inside the loop
     C = config.chunk
 
@@ -356,7 +356,7 @@ def _inside_group(uv, flat_fg, config: Config, W: int, H: int, C2: int):
     d2 = 1.0 / n2
     rows = jnp.where(f1 & f2, n1 + 1.0, 0.0)
     blocks = jnp.ceil(n2 / C2)  # blocks per row
-    offset = jnp.broadcast_to(parsec._trail(jnp.arange(V, dtype=uv.dtype) * (W * H), nb + 1), p1x.shape)
+    offset = jnp.broadcast_to(_trail(jnp.arange(V, dtype=uv.dtype) * (W * H), nb + 1), p1x.shape)
     offset = offset + jnp.zeros_like(p1x)  # a full array: no broadcast inside the loop
 
     def body_fn(carry):
@@ -415,7 +415,7 @@ def _group_sums(uv: jnp.ndarray, obs: Observation, config: Config):
     buckets: dict[tuple[int, int], list] = {}
     for g, c2 in zip(config.groups, config.inside_cols, strict=True):
         buckets.setdefault((len(g), c2), []).append(g)
-    per_part = [None] * parsec.NUM_PARTS
+    per_part = [None] * NUM_PARTS
     for (_, c2), groups in buckets.items():
         stacked = jnp.stack([uv[:, np.asarray(g)] for g in groups])  # (G, V, g, 4, 2, *B)
 
@@ -464,8 +464,8 @@ def _total(a: jnp.ndarray, nb: int) -> jnp.ndarray:
 def _terms(shape: BodyShape, cams: Cameras, obs: Observation, x: jnp.ndarray, config: Config) -> Terms:
     """:class:`Terms` of states ``x (31, *B)``, batch axes trailing (the hot path)."""
     nb = x.ndim - 1
-    A, t = parsec._cylinder_frames(shape, x)
-    uv = parsec._corners(shape, cams, A, t)
+    A, t = cylinders._cylinder_frames(shape, x)
+    uv = cylinders._corners(shape, cams, A, t)
     edge_ssd, n_edge, background, n_inside = (_total(a, nb) for a in _group_sums(uv, obs, config))
     edge_err = edge_ssd / (255.0 * 255.0) / jnp.maximum(n_edge, 1.0)
     inside_err = background / jnp.maximum(n_inside, 1.0)
@@ -485,7 +485,7 @@ def likelihood_terms(
     cylinders or no in-image sample.
     """
     x = jnp.asarray(x)
-    if x.shape != (parsec.NUM_DOFS,):
+    if x.shape != (NUM_DOFS,):
         raise ValueError(f"expected one state of shape (31,), got {x.shape}")
     return _terms(shape, cams, obs, x, config)
 
@@ -507,7 +507,7 @@ def log_likelihood_batch(
     per-sample arithmetic (several times faster than ``vmap``, whose batch axis leads).
     """
     X = jnp.asarray(X)
-    if X.ndim != 2 or X.shape[1] != parsec.NUM_DOFS:
+    if X.ndim != 2 or X.shape[1] != NUM_DOFS:
         raise ValueError(f"expected particles of shape (N, 31), got {X.shape}")
     return _terms(shape, cams, obs, X.T, config)
 

@@ -31,10 +31,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxmocap.errors import MocapInputError
-from jaxmocap.filters import APF, annealing
+from jaxmocap.filters import APF
 from jaxmocap.filters.base import State
 from jaxmocap.geometry import body as body_mod
 from jaxmocap.io import export
+from jaxmocap.parsec import annealing
 from jaxmocap.parsec import likelihood as pl
 from jaxmocap.parsec import model as parsec
 
@@ -202,7 +203,7 @@ class ParsecTracker:
         t_begin = time.monotonic()
         std = jnp.asarray(self.std, jnp.float32)
         loglik = make_loglik(src.shape, src.cameras)
-        filt = APF.parsec(loglik, std, self.num_particles, self.layers)
+        filt = annealing.parsec_apf(loglik, std, self.num_particles, self.layers)
         t0 = self.frames[0]
         obs0, _ = self._observe(t0)  # a broken first frame fails before any output is written
         self._prepare_out()

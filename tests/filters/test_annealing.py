@@ -1,5 +1,5 @@
 """Survival rate / ESS against their closed forms, the β solvers inside jit against float64 root-finding (scipy),
-the thesis correction, PARSEC's schedule and quirks."""
+the thesis correction, schedules (PARSEC's rule and quirks: tests/parsec/test_parsec_annealing.py)."""
 
 import math
 
@@ -104,44 +104,6 @@ def test_solve_beta_fallbacks():
     assert np.isfinite(float(sol.beta)) and float(sol.survival_rate) == 0.0
 
 
-# PARSEC's own debug vector for its β search (AnnealingFactor.cpp, set_ets; Apache-2.0, PARSEC 3.0 bodytrack)
-_PARSEC_ETS = np.array(
-    [0.0431287287, 0.0, 0.1890535963, 0.1314251348, 0.1744840913, 0.1724611824, 0.1665666636, 0.1008506786,
-     0.1570010271, 0.1469321041, 0.0941946672, 0.0873843544, 0.1011394290, 0.1401914942, 0.0944126324,
-     0.1747114664, 0.0861499931, 0.1744767988, 0.1881925406, 0.0845404237, 0.1416303064, 0.1722650238,
-     0.0353243611, 0.1919276523, 0.1255045773]
-)  # fmt: skip
-
-
-def test_parsec_beta():
-    fn = jax.jit(annealing.parsec_beta)
-    sol = fn(jnp.asarray(_PARSEC_ETS, jnp.float32))
-    root = brentq(lambda b: _alpha64(b, _PARSEC_ETS) - 0.5, 0.0, 1000.0, xtol=1e-12)
-    assert int(sol.status) == annealing.STATUS_OK
-    assert abs(_alpha64(float(sol.beta), _PARSEC_ETS) - 0.5) <= 2e-5  # its precision is 1e-5 on α in float32
-    assert float(sol.beta) == pytest.approx(root, rel=1e-3)
-    # shifting the log-likelihoods changes nothing (w = ll - min ll)
-    assert float(fn(jnp.asarray(_PARSEC_ETS - 3.0, jnp.float32)).beta) == pytest.approx(
-        float(sol.beta), rel=1e-5
-    )
-    # invalid particles are dropped from N
-    with_dead = jnp.asarray(np.r_[_PARSEC_ETS, -np.inf, np.nan], jnp.float32)
-    assert float(fn(with_dead).beta) == pytest.approx(float(sol.beta), rel=1e-5)
-    # no sign change over [0, 1000] → 1.0
-    flat = fn(jnp.zeros(50))
-    assert float(flat.beta) == 1.0 and int(flat.status) == annealing.STATUS_BETA_MAX
-
-
-def test_parsec_overflow_quirk():
-    """With one particle 1000 below the others α stays ≈ 1 up to β·1000 = 40, where the guard declares β too large:
-    the bisection ends near β = 40 / 1000 without reaching α = 0.5 (Deutscher's rule returns β_max here)."""
-    ll = jnp.asarray(np.r_[np.zeros(999), -1000.0], jnp.float32)
-    sol = jax.jit(annealing.parsec_beta)(ll)
-    assert int(sol.status) == annealing.STATUS_MAXITER
-    assert float(sol.beta) == pytest.approx(0.04, rel=1e-4)
-    assert int(jax.jit(annealing.solve_beta)(ll).status) == annealing.STATUS_BETA_MAX
-
-
 def test_corrected_beta():
     """López Méndez eq. 6.4: β(l) = β(l-1) - ε(α_target - α(l-1)), ε = 1/(1+l), non-decreasing."""
     f = jax.jit(annealing.corrected_beta, static_argnames=("target", "monotone"))
@@ -151,17 +113,6 @@ def test_corrected_beta():
     assert float(f(2.0, 0.1, 1, monotone=False)) == pytest.approx(2.0 - 0.5 * 0.4, rel=1e-6)
     assert float(f(2.0, 0.1, 1)) == pytest.approx(2.0, rel=1e-6)
     assert float(f(0.05, 0.0, 1, monotone=False)) == 0.0
-
-
-def test_parsec_diffusion_scales_match_reference_report():
-    """The STDDEV lines of PARSEC's probe report (sequenceB_2, 5 layers; first DOF) divided by σ_0, in run order
-    (layers run k = 4 … 0)."""
-    stddev_by_k = [0.0113386102, 0.00283465208, 0.00400880352, 0.00566930464, 0.00801760796]  # k = 0 … 4
-    expected = [stddev_by_k[k] / stddev_by_k[0] for k in (4, 3, 2, 1, 0)]
-    np.testing.assert_allclose(annealing.parsec_diffusion_scales(5), expected, rtol=1e-6)
-    assert annealing.parsec_diffusion_scales(1) == (1.0,)
-    s = Schedule.parsec(5)
-    assert s.kind == "parsec" and s.scales == annealing.parsec_diffusion_scales(5) and s.beta_max == 1000.0
 
 
 def test_schedules():
@@ -175,8 +126,19 @@ def test_schedules():
         Schedule(kind="fixed", num_layers=2, betas=(1.0,))
     with pytest.raises(ValueError):
         Schedule(kind="nope")
+    with pytest.raises(ValueError):  # a rule schedule needs its rule, and only it takes one
+        Schedule(kind="rule", num_layers=2)
+    with pytest.raises(ValueError):
+        Schedule(kind="survival", beta_rule=_deutscher_rule)
     with pytest.raises(ValueError):
         Schedule.deutscher(3, diffusion_scales=(1.0, 0.5))
+
+
+def _deutscher_rule(ll, schedule):
+    """Deutscher's rule as a caller's ``beta_rule`` (the hook a wing's rule plugs into)."""
+    return annealing.solve_beta(
+        ll, schedule.survival_target, schedule.beta_max, schedule.tol, schedule.maxiter
+    )
 
 
 @pytest.mark.parametrize(
@@ -185,7 +147,7 @@ def test_schedules():
         Schedule.fixed((0.1, 0.4, 1.0)),
         Schedule.deutscher(3),
         Schedule(kind="corrected", num_layers=3),
-        Schedule.parsec(3),
+        Schedule(kind="rule", num_layers=3, beta_rule=_deutscher_rule),
     ],
 )
 def test_choose_beta_with_traced_layer(schedule):

@@ -108,3 +108,22 @@ def test_shipped_body_files_load(name):
     m = body.load_body(body.default_body_path(name))
     assert m.name == name
     np.testing.assert_allclose(np.asarray(m.offset), np.asarray(body.build(name).offset))
+
+
+def test_registered_presets():
+    """A wing's preset: built in its own units, or by its metric builder with ``in_metres``; unknown names list
+    the choices; the built-in presets cannot be replaced."""
+    native = lambda dims, dtype=jnp.float32: body.full25(dims, dtype=dtype)
+    metric = lambda dims: body.upper9(dims)
+    body.register_preset("test_wing_model", native, metric)
+    try:
+        assert "test_wing_model" in body.preset_names()
+        assert body.build("test_wing_model").name == "full25"
+        assert body.build("test_wing_model", in_metres=True).name == "upper9"
+        assert body.build("full25", in_metres=True).name == "full25"  # built in: metres already
+    finally:
+        body._REGISTERED.pop("test_wing_model")
+    with pytest.raises(ValueError, match="choose one of"):
+        body.build("test_wing_model")
+    with pytest.raises(ValueError, match="built-in"):
+        body.register_preset("full25", native)

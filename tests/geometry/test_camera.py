@@ -17,8 +17,10 @@ from hypothesis import strategies as st
 from jax import enable_x64
 from jax.test_util import check_grads
 
+from jaxmocap import parsec  # registers the PARSEC .cal reader with load_calibration
 from jaxmocap.errors import MocapInputError
 from jaxmocap.geometry import camera as C
+from jaxmocap.io import calibration as IO
 from jaxmocap.io.openpose import BODY_25B_KEYPOINTS, load_openpose_folder, load_openpose_json
 from jaxmocap.io.trc import load_trc
 
@@ -65,7 +67,7 @@ def _rvecs_as_stored(name, rig):
 
 @pytest.mark.parametrize("name", list(CALIBRATIONS))
 def test_projection_matches_opencv(name):
-    rig = C.load_calibration(CALIBRATIONS[name])
+    rig = IO.load_calibration(CALIBRATIONS[name])
     rng = np.random.default_rng(0)
     rvecs = _rvecs_as_stored(name, rig)
     with enable_x64(True):
@@ -83,7 +85,7 @@ def test_projection_matches_opencv(name):
 
 
 def test_projection_depth_and_camera_frame():
-    rig = C.load_calibration(CALIBRATIONS["caliscope"])
+    rig = IO.load_calibration(CALIBRATIONS["caliscope"])
     X = _points_in_front(rig, 2, 50, np.random.default_rng(1))
     with enable_x64(True):
         uv, depth = project_with_depth(rig, X)
@@ -131,7 +133,7 @@ def _parsec_reference():
 
 def test_parsec_reference_projections():
     """PARSEC's C++ tracker projected 4 corners of each of 10 cylinders into 4 cameras (mm world); we agree."""
-    rig = C.load_parsec_calibration(CALIB / "parsec" / "CALIB", units="mm")
+    rig = parsec.load_parsec_calibration(CALIB / "parsec" / "CALIB", units="mm")
     eyes, cyl, proj = _parsec_reference()
     assert len(proj) == 40
     with enable_x64(True):
@@ -167,7 +169,7 @@ def test_in_view():
 
 @pytest.mark.parametrize("name", ["caliscope", "parsec", "opencv_left"])
 def test_undistort_matches_opencv(name):
-    rig = C.load_calibration(CALIBRATIONS[name])
+    rig = IO.load_calibration(CALIBRATIONS[name])
     rng = np.random.default_rng(3)
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-15)
     with enable_x64(True):
@@ -187,7 +189,7 @@ def test_undistort_matches_opencv(name):
 
 
 def test_triangulation_matches_opencv():
-    rig = C.select(C.load_calibration(CALIBRATIONS["pose2sim"]), [0, 1])
+    rig = C.select(IO.load_calibration(CALIBRATIONS["pose2sim"]), [0, 1])
     rng = np.random.default_rng(4)
     X = rng.uniform([-1.0, -1.0, 0.0], [1.0, 1.0, 2.0], (200, 3))
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-15)
@@ -208,7 +210,7 @@ def test_triangulation_matches_opencv():
 
 
 def test_triangulation_weights_drop_views():
-    rig = C.load_calibration(CALIBRATIONS["caliscope"])
+    rig = IO.load_calibration(CALIBRATIONS["caliscope"])
     rng = np.random.default_rng(5)
     X = rng.uniform(-0.3, 0.3, (50, 3)) + np.array([0.0, 0.0, 0.5])
     with enable_x64(True):
@@ -223,7 +225,7 @@ def test_triangulation_weights_drop_views():
 
 def test_caliscope_charuco_reprojection():
     """Corners seen by >= 2 cameras, triangulated from camera_array.toml and reprojected (caliscope: 0.46 px)."""
-    rig = C.load_calibration(CALIBRATIONS["caliscope"])
+    rig = IO.load_calibration(CALIBRATIONS["caliscope"])
     d = np.genfromtxt(CALIB / "caliscope" / "xy.csv", delimiter=",", names=True)
     assert len(d) == 1725
     keys = sorted({(int(s), int(k)) for s, k in zip(d["sync_index"], d["keypoint_id"], strict=True)})
@@ -246,7 +248,7 @@ def test_caliscope_charuco_reprojection():
 
 def test_pose2sim_trc_reprojects_onto_openpose_keypoints():
     """Pose2Sim's triangulated .trc, projected through its calibration, lands on the BODY_25B detections."""
-    rig = C.load_calibration(CALIBRATIONS["pose2sim"])
+    rig = IO.load_calibration(CALIBRATIONS["pose2sim"])
     names, pos, fps = load_trc(P2S / "S00_P00_T01_BalancingTrial_0-100.trc")
     assert pos.shape == (100, 21, 3) and fps == 60.0
     # marker name -> BODY_25B column, from the (commented) BODY_25B skeleton in Pose2Sim's Config.toml
@@ -274,7 +276,7 @@ def test_pose2sim_trc_reprojects_onto_openpose_keypoints():
 
 
 def test_projection_gradients():
-    rig = C.load_calibration(CALIBRATIONS["caliscope"])
+    rig = IO.load_calibration(CALIBRATIONS["caliscope"])
     X = _points_in_front(rig, 0, 6, np.random.default_rng(6), depth=(1.0, 3.0))
     with enable_x64(True):
         rig64 = rig.to_jax(jnp.float64)
@@ -283,7 +285,7 @@ def test_projection_gradients():
 
 
 def test_batched_particles_jit_and_no_recompilation():
-    rig = C.select(C.load_calibration(CALIBRATIONS["pose2sim"]), [0, 2]).to_jax()
+    rig = C.select(IO.load_calibration(CALIBRATIONS["pose2sim"]), [0, 2]).to_jax()
     traces = []
 
     @jax.jit
@@ -311,7 +313,7 @@ def test_batched_particles_jit_and_no_recompilation():
 
 
 def test_from_opencv_select_and_names():
-    rig = C.load_calibration(CALIBRATIONS["pose2sim"])
+    rig = IO.load_calibration(CALIBRATIONS["pose2sim"])
     data = tomllib.loads(CALIBRATIONS["pose2sim"].read_text())
     rv = np.array([data[k]["rotation"] for k in data if k != "metadata"])
     again = C.from_opencv(rig.K, rig.dist[:, :4], rv, rig.t, names=rig.names, image_size=rig.image_size)
@@ -329,7 +331,7 @@ def test_from_opencv_select_and_names():
 def test_scale_images_matches_cv2_resize():
     """A blob rendered at the projection of a point, shrunk with cv2.resize, has its centroid at the projection
     through the scaled rig (pixel-centre convention)."""
-    rig = C.load_calibration(CALIBRATIONS["opencv_left"])
+    rig = IO.load_calibration(CALIBRATIONS["opencv_left"])
     X = np.array([[0.05, -0.03, 1.0]])
     with enable_x64(True):
         u, v = np.asarray(project(rig, X))[0, 0]
@@ -347,11 +349,11 @@ def test_scale_images_matches_cv2_resize():
 
 
 def test_opencv_files():
-    left = C.load_calibration(CALIBRATIONS["opencv_left"])
+    left = IO.load_calibration(CALIBRATIONS["opencv_left"])
     assert left.image_size == ((640, 480),)
     np.testing.assert_allclose(left.K[0, 0, 0], 5.3591573396163199e02)
     np.testing.assert_allclose(left.R[0], np.eye(3))
-    stereo = C.load_calibration(CALIBRATIONS["opencv_stereo"])
+    stereo = IO.load_calibration(CALIBRATIONS["opencv_stereo"])
     assert stereo.num_views == 2
     np.testing.assert_allclose(stereo.dist[1], [-1.6916358306948096e-01, -1.1214173641213163e-01, 0, 0, 0])
 
@@ -371,12 +373,12 @@ def test_opencv_stereo_extrinsics_and_xml(tmp_path):
         fs.write("R", cv2.Rodrigues(rvec)[0])
         fs.write("T", T[:, None])
         fs.release()
-        rig = C.load_calibration(d / f"intrinsics.{ext}")
+        rig = IO.load_calibration(d / f"intrinsics.{ext}")
         np.testing.assert_allclose(rig.R[1], cv2.Rodrigues(rvec)[0], atol=1e-15)
         np.testing.assert_allclose(rig.t[1], T)
         np.testing.assert_allclose(rig.K[1, 0, 0], 502.0)
         np.testing.assert_allclose(rig.dist[0], [0.1, -0.01, 0, 0, 0])
-        scaled = C.load_opencv_storage(d / f"intrinsics.{ext}", translation_scale=0.025)
+        scaled = IO.load_opencv_storage(d / f"intrinsics.{ext}", translation_scale=0.025)
         np.testing.assert_allclose(scaled.t[1], 0.025 * T)
 
 
@@ -384,8 +386,8 @@ def test_qualisys_matches_pose2sim_conversion():
     """The QCA file read directly equals Pose2Sim's own conversion of it, except that Pose2Sim divided the
     distortion coefficients by 64; the undivided values are the ones a fresh OpenCV calibration of these cameras
     finds (k1 ≈ −0.05, k2 ≈ 0.15), so they are kept."""
-    qca = C.load_calibration(CALIBRATIONS["qualisys"])
-    p2s = C.load_calibration(CALIBRATIONS["pose2sim"])
+    qca = IO.load_calibration(CALIBRATIONS["qualisys"])
+    p2s = IO.load_calibration(CALIBRATIONS["pose2sim"])
     np.testing.assert_allclose(qca.K, p2s.K, atol=1e-9)
     np.testing.assert_allclose(qca.R, p2s.R, atol=1e-12)
     np.testing.assert_allclose(qca.t, p2s.t, atol=1e-12)
@@ -394,8 +396,8 @@ def test_qualisys_matches_pose2sim_conversion():
 
 
 def test_parsec_units():
-    m = C.load_parsec_calibration(CALIB / "parsec" / "CALIB")
-    mm = C.load_parsec_calibration(sorted((CALIB / "parsec" / "CALIB").glob("*.cal")), units="mm")
+    m = parsec.load_parsec_calibration(CALIB / "parsec" / "CALIB")
+    mm = parsec.load_parsec_calibration(sorted((CALIB / "parsec" / "CALIB").glob("*.cal")), units="mm")
     assert m.names == ("Camera1", "Camera2", "Camera3", "Camera4") and m.image_size == ((640, 480),) * 4
     np.testing.assert_allclose(m.t * 1000.0, mm.t)
     np.testing.assert_allclose(mm.t[0], [206.1183200800, -197.3226847369, 4524.5364798878])
@@ -409,10 +411,10 @@ def test_parsec_units():
 
 @pytest.mark.parametrize("name", ["pose2sim", "caliscope", "parsec", "qualisys", "opencv_stereo"])
 def test_save_round_trip(name, tmp_path):
-    rig = C.load_calibration(CALIBRATIONS[name])
+    rig = IO.load_calibration(CALIBRATIONS[name])
     out = tmp_path / "calib.toml"
-    C.save_calibration(out, rig)
-    back = C.load_calibration(out)
+    IO.save_calibration(out, rig)
+    back = IO.load_calibration(out)
     assert back.names == rig.names and back.image_size == rig.image_size
     for a, b in ((back.K, rig.K), (back.dist, rig.dist), (back.R, rig.R), (back.t, rig.t)):
         np.testing.assert_allclose(a, b, atol=1e-12)
@@ -431,28 +433,28 @@ def test_errors_name_file_and_line(tmp_path):
     bad = tmp_path / "Camera1.cal"
     bad.write_text("\n".join(cal[:6] + ["0.13x"] + cal[7:]))
     with pytest.raises(MocapInputError) as e:
-        C.load_calibration(bad)
+        IO.load_calibration(bad)
     assert e.value.line == 7 and str(bad) in str(e.value)
     bad.write_text("\n".join(cal[:20]))
     with pytest.raises(MocapInputError, match="truncated"):
-        C.load_calibration(bad)
+        IO.load_calibration(bad)
     toml = CALIBRATIONS["pose2sim"].read_text().replace("translation = [ -0.79", "transl = [ -0.79")
     (tmp_path / "c.toml").write_text(toml)
     with pytest.raises(MocapInputError, match="translation") as e:
-        C.load_calibration(tmp_path / "c.toml")
+        IO.load_calibration(tmp_path / "c.toml")
     assert e.value.line == 19  # the [cam_03] header
     (tmp_path / "c.toml").write_text(
         CALIBRATIONS["pose2sim"].read_text().replace("fisheye = false", "fisheye = true")
     )
     with pytest.raises(MocapInputError, match="fisheye"):
-        C.load_calibration(tmp_path / "c.toml")
+        IO.load_calibration(tmp_path / "c.toml")
     (tmp_path / "s.yml").write_text(
         CALIBRATIONS["opencv_stereo"].read_text().replace("cols: 3", "cols: 4", 1)
     )
     with pytest.raises(MocapInputError):
-        C.load_calibration(tmp_path / "s.yml")
+        IO.load_calibration(tmp_path / "s.yml")
     with pytest.raises(MocapInputError):
-        C.load_calibration(tmp_path / "missing.toml")
+        IO.load_calibration(tmp_path / "missing.toml")
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -528,7 +530,7 @@ def _load_any(name, path):
         return load_trc(path)
     if name == "openpose":
         return load_openpose_json(path)
-    return C.load_calibration(path)
+    return IO.load_calibration(path)
 
 
 @pytest.mark.parametrize("name", list(FUZZ_FILES))

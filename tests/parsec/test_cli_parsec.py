@@ -17,11 +17,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxmocap import parsec
 from jaxmocap.cli import main
 from jaxmocap.errors import MocapInputError
 from jaxmocap.geometry import body
 from jaxmocap.io import bvh, export
-from jaxmocap.parsec import model as parsec
 from jaxmocap.parsec.inputs import ParsecSource, find_parsec_folder
 
 DATA = pathlib.Path(__file__).parents[1] / "data" / "parsec"

@@ -14,10 +14,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxmocap import parsec  # also registers the parsec31 body with jaxmocap.geometry.body
 from jaxmocap.errors import MocapInputError
-from jaxmocap.geometry import body, camera
+from jaxmocap.geometry import body
+from jaxmocap.parsec import cylinders
 from jaxmocap.parsec import likelihood as pl
-from jaxmocap.parsec import model as parsec
 
 DATA = pathlib.Path(__file__).parents[1] / "data" / "parsec"
 PROBE_POSES = ("InitialPose.txt", "poses.txt line 0", "poses.txt line 1")
@@ -211,6 +212,27 @@ def test_edge_map_equals_bodytrack(pdata):
 # Body model
 
 
+def test_parsec31_in_metres_is_the_millimetre_body_scaled():
+    """The metric build the tracker asks for (``in_metres=True``): PARSEC's radii and lengths over 1000, the same
+    chain, for no dimensions as for sequenceB's."""
+    mm, m = body.build("parsec31"), body.build("parsec31", in_metres=True)
+    assert m.name == "parsec31" and m.topology == mm.topology
+    for field in (
+        "offset",
+        "shape_start",
+        "shape_end",
+        "radius_start",
+        "radius_end",
+        "joint_point",
+        "rest_pose",
+    ):
+        np.testing.assert_allclose(
+            np.asarray(getattr(m, field)) * 1000.0, getattr(mm, field), rtol=1e-6, atol=1e-4
+        )
+    np.testing.assert_array_equal(m.offset, body.build("parsec31", {}, in_metres=True).offset)
+    np.testing.assert_array_equal(m.offset, parsec.parsec31_in_metres(parsec.default_shape()).offset)
+
+
 def test_parsec31_is_a_body_model(tmp_path):
     m = body.build("parsec31")
     assert m.num_dofs == 31 and m.dof_names == parsec.DOF_NAMES
@@ -259,7 +281,7 @@ def test_cylinder_poses_match_bodytrack(pdata):
             P = np.asarray(parsec.cylinder_poses(shape, jnp.asarray(x)))
             np.testing.assert_allclose(P[..., :3], ref[..., :3], atol=2e-6)  # rotations, printed to 9 digits
             np.testing.assert_allclose(P[..., 3], ref[..., 3], atol=1e-3)  # mm
-            P2 = np.asarray(parsec._scaled_poses(shape, *body.segment_poses(model, jnp.asarray(x))))
+            P2 = np.asarray(cylinders._scaled_poses(shape, *body.segment_poses(model, jnp.asarray(x))))
             np.testing.assert_allclose(P2, P, atol=1e-9)
     # float32, the default: same poses to float32 precision
     P32 = parsec.cylinder_poses(shape, jnp.asarray(pdata["states"]["InitialPose.txt"], jnp.float32))
@@ -268,7 +290,7 @@ def test_cylinder_poses_match_bodytrack(pdata):
 
 def test_fast_sincos_is_accurate():
     x = np.random.default_rng(0).uniform(-60.0, 60.0, 100_000).astype(np.float32)
-    s, c = parsec._sincos(jnp.asarray(x))
+    s, c = cylinders._sincos(jnp.asarray(x))
     np.testing.assert_allclose(np.asarray(s, np.float64), np.sin(x.astype(np.float64)), atol=1.2e-7)
     np.testing.assert_allclose(np.asarray(c, np.float64), np.cos(x.astype(np.float64)), atol=1.2e-7)
 
@@ -279,7 +301,7 @@ def test_fast_sincos_is_accurate():
 
 def test_projection_equals_opencv(pdata):
     cams = pdata["cams"]
-    rig = camera.load_parsec_calibration(pdata["seq"], units="mm")
+    rig = parsec.load_parsec_calibration(pdata["seq"], units="mm")
     X = np.random.default_rng(1).uniform([-800, 500, 0], [800, 1500, 1800], (50, 3))
     with jax.enable_x64(True):
         uv = np.asarray(parsec.project(cams, jnp.asarray(X)))

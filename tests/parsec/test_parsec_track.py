@@ -11,11 +11,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxmocap.filters import APF, annealing
+from jaxmocap import parsec
 from jaxmocap.filters.base import State
 from jaxmocap.geometry import body
+from jaxmocap.parsec import annealing
 from jaxmocap.parsec import likelihood as pl
-from jaxmocap.parsec import model as parsec
 
 DATA = pathlib.Path(__file__).parents[1] / "data" / "parsec"
 
@@ -49,7 +49,7 @@ def test_parsec_apf_frame0_close_to_bodytrack():
         ll = raw(X, o)
         return jnp.where(ll <= -1e9, -jnp.inf, ll)
 
-    filt = APF.parsec(loglik, std, 1000, 3)
+    filt = annealing.parsec_apf(loglik, std, 1000, 3)
 
     @jax.jit
     def run(key):

@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
+import jaxmocap.parsec  # noqa: F401  (registers the PARSEC .cal camera reader)
 from jaxmocap import cli
 from jaxmocap.errors import MocapInputError
 from jaxmocap.geometry import body, camera
