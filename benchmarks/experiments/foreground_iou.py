@@ -104,7 +104,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", default="120:180")
     ap.add_argument("--size", default="640x480")
-    ap.add_argument("--out", default="benchmarks/results/foreground_iou.md")
+    ap.add_argument("--out", default=str(common.RESULTS / "foreground_iou.md"))
     a = ap.parse_args(argv)
     rows = evaluate(a.frames, a.size)
     md = to_markdown(rows, a.frames, a.size)

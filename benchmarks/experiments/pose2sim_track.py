@@ -12,8 +12,8 @@ Reported, over the tracked frames: per-joint and mean 3D distance (mm) to the ``
 set; the 2D distance (px, full-size images) of the tracked joints and of the reference's own markers to the
 detections (confidence > 0.3) of each camera. Usage::
 
-    .venv/bin/python benchmarks/pose2sim_track.py --out /tmp/p2s           # 4 cameras and the nearest pair
-    .venv/bin/python benchmarks/pose2sim_track.py --make-test-data tests/data/pose2sim_small
+    .venv/bin/python benchmarks/experiments/pose2sim_track.py --out /tmp/p2s           # 4 cameras and the nearest pair
+    .venv/bin/python benchmarks/experiments/pose2sim_track.py --make-test-data tests/data/pose2sim_small
 """
 
 from __future__ import annotations
@@ -249,7 +249,7 @@ def make_test_data(dest: pathlib.Path, frames: list[int], scale: float) -> None:
         "OpenPose BODY_25B detections (`pose/camNN_json`), the triangulated reference (`pose-3d/"
         "S00_P00_T01_BalancingTrial_0-100.trc`) and the calibration (`S00_Calibration/Calib_qualisys.toml`) at\n"
         "commit a948c205cfe4ea5c22d6941929e8efaba591a59d (S00_P00_T01_BalancingTrial).\n\n"
-        f"Made by `benchmarks/pose2sim_track.py --make-test-data`: frames {frames} of every camera resized by {scale}\n"
+        f"Made by `benchmarks/experiments/pose2sim_track.py --make-test-data`: frames {frames} of every camera resized by {scale}\n"
         "(cam01/cam02 padded on the right from 1080 to the calibrated 1088 px first), JPEG quality 90;\n"
         "`background/` (JPEG quality 90) = per-pixel median of 15 frames without the subject's box, filled from\n"
         "`calibration/extrinsics/camNN_ext.png`; the detection JSONs and calibration copied unmodified;\n"
