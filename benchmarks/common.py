@@ -2,7 +2,7 @@
 
 Every script under ``benchmarks/perf/`` and ``benchmarks/experiments/`` starts with the one line
 
-    sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmarks/: common, reference
+    sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmarks/: the shared modules
 
 so that ``common`` (this module), ``scenes`` and ``reference`` import the same way whether the script runs as
 ``python benchmarks/perf/bench_likelihood.py`` from the repository root, is loaded by ``benchmarks/run.py`` or by a

@@ -41,7 +41,10 @@ from collections.abc import Callable
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 
-HERE = pathlib.Path(__file__).resolve().parent
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))  # benchmarks/: the shared modules
+import common
+
+HERE = common.BENCH
 RESULTS = HERE / "RESULTS.md"
 RESULTS_DIR = HERE / "results"
 
@@ -333,7 +336,7 @@ def machine_block(load: tuple[float, float, float]) -> str:
         f"{load[2]:.1f} (1 / 5 / 15 min); JAX devices: {devices}.  \n"
         f"Versions: Python {platform.python_version()}, JAX {jax.__version__}, jaxlib {jaxlib.__version__}, "
         f"NumPy {np.__version__}, OpenCV {cv2.__version__}.  \n"
-        f"Date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}."
+        f"Date: {common.stamp()}."
     )
 
 
@@ -419,7 +422,7 @@ def main(argv=None) -> int:
             print(f"   {name} failed: {type(e).__name__}: {e}", file=sys.stderr, flush=True)
         dt = time.monotonic() - t0
         stamp = (
-            f"_Generated {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())} by `python benchmarks/run.py --only "
+            f"_Generated {common.stamp()} by `python benchmarks/run.py --only "
             f"{name}{' --quick' if a.quick else ''}` (same as `{b.command}`), load average {la:.1f} at "
             f"start, {dt:.0f} s._"
         )

@@ -1,7 +1,8 @@
 """Throughput of forward kinematics + projection of flesh points (full25, ~600 points, 2 views).
 
 Compares, in one process, the compiled JAX hot path (structure-of-arrays FK, vmapped over particles) with a NumPy
-implementation of the same arithmetic, vectorised over particles. Prints medians and the ratio.
+implementation of the same arithmetic, vectorised over particles (:func:`reference.numpy_baselines.fk_projection`).
+Prints medians and the ratio.
 
     python benchmarks/perf/bench_kinematics.py [--particles 4000] [--repeats 7] [--quick]
 """

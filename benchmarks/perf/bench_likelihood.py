@@ -1,7 +1,7 @@
 """Speed of the composed cue likelihood (``Likelihood.batch``, jitted) against a NumPy implementation of the same
 computation in the same process (issue 5).
 
-Configurations (2 views, 640×480, synthetic observation maps):
+Configurations (2 views, 640×480, synthetic observation maps; :data:`scenes.CONFIGS`):
 
 * ``upper14-iros``: ``upper14`` with the IROS 2007 cue set (edge_distance, colour_histogram, blobs3d, skin,
   homogeneous_colour); target ≥ 100 k particles/s on 2 cores;
@@ -9,8 +9,8 @@ Configurations (2 views, 640×480, synthetic observation maps):
 
 Particles are drawn around a standing pose in view of both cameras. JAX: median (and minimum) wall time of
 ``--repeats`` calls after compilation. NumPy: the same FK (twists), flesh points, occluding contours,
-projection, facing test, nearest-pixel lookups and cue energies, vectorised over particles (float32), median of
-``--numpy-repeats``; both are checked to agree on the first 64 particles before timing.
+projection, facing test, nearest-pixel lookups and cue energies, vectorised over particles (float32,
+:class:`reference.numpy_baselines.NumpyLikelihood`), median of ``--numpy-repeats``; both are checked to agree on the first 64 particles before timing.
 
 ``upper14-iros-P300`` / ``-P150``: the IROS 2007 set with 300 / 150 flesh surface samples instead of 600 (the
 cost is linear in them). ``--per-cue`` times each IROS 2007 cue alone, with the geometry it needs. ``--sweep``

@@ -3,7 +3,8 @@
 Reports µs per particle per layer (one likelihood evaluation of every particle) for ``--particles`` states drawn
 around sequenceB_2's initial pose with PoseParameters' standard deviations, 4 cameras, frame 0: the median and
 minimum wall time of ``--repeats`` runs after compilation, the process CPU time, and the same for a NumPy
-implementation of the same likelihood (vectorised over particles, float32 like the C++) run in the same process.
+implementation of the same likelihood (vectorised over particles, float32 like the C++;
+:func:`reference.numpy_baselines.np_loglik`) run in the same process.
 bodytrack's serial C++ takes about 13 µs per particle and layer on a 2-core machine like the CI machine
 (``../shared/data/parsec/FORMAT.md``, including its noise and resampling).
 
