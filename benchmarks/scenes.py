@@ -79,12 +79,15 @@ def observation(rig, rng):
 
 
 def particles(model, n, rng):
+    """``(n, D)`` float32 states: the rest pose + N(0, 0.05²) on every DOF, clipped to the joint limits."""
     x = np.asarray(model.rest_pose, F).copy()
     noise = rng.normal(0.0, 0.05, (n, model.num_dofs)).astype(F)
     return np.clip(x + noise, np.asarray(model.lower), np.asarray(model.upper)).astype(F)
 
 
 def build(config: str, rng):
+    """``(model, rig, observation, likelihood, target particles/s)`` of the configuration ``config`` (a key of
+    :data:`CONFIGS` or :data:`SAMPLE_SWEEP`); colour references taken at the rest pose when a cue needs them."""
     preset, names, target, points = {**CONFIGS, **SAMPLE_SWEEP}[config]
     model = getattr(body, preset)()
     rig = stereo_rig()
