@@ -1,11 +1,17 @@
-"""Run the benchmarks and regenerate ``benchmarks/RESULTS.md``.
+"""Run the benchmarks and regenerate ``benchmarks/RESULTS.md``; the register of every benchmark script.
 
     python benchmarks/run.py                     # every benchmark except the slow experiments; updates RESULTS.md
     python benchmarks/run.py --all               # also the slow experiments (accuracy tables, hybrid filters)
     python benchmarks/run.py --only end_to_end scaling
-    python benchmarks/run.py --quick             # tiny sizes, every benchmark (smoke test); writes nothing
+    python benchmarks/run.py --only parsec_track # a script that writes its own results file: runs its command
+    python benchmarks/run.py --quick             # tiny sizes, every RESULTS.md benchmark (smoke test); writes nothing
     python benchmarks/run.py --quick --results /tmp/R.md   # … into another file
-    python benchmarks/run.py --list
+    python benchmarks/run.py --list              # every script and its command
+    python benchmarks/run.py --index             # rewrite results/README.md: each results file and its command
+
+:data:`SCRIPTS` registers every script under ``perf/`` (timed, against a baseline in the same process) and
+``experiments/`` (accuracy tables, tracking experiments) with the command that runs it and the files under
+``results/`` that command regenerates.
 
 Each benchmark is a function ``(quick) -> markdown`` (a table, or the benchmark's printed report in a code block);
 the numbers inside are medians over repeated runs after compilation, with ratios against baselines run in the same
@@ -20,26 +26,42 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
-import importlib
+import fnmatch
+import importlib.util
 import io
 import os
 import pathlib
 import platform
 import re
+import shlex
+import subprocess
 import sys
 import time
 from collections.abc import Callable
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 
-HERE = pathlib.Path(__file__).resolve().parent
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))  # benchmarks/: the shared modules
+import common
+
+HERE = common.BENCH
 RESULTS = HERE / "RESULTS.md"
+RESULTS_DIR = HERE / "results"
 
 
-def _module(name: str):
-    if str(HERE) not in sys.path:
-        sys.path.insert(0, str(HERE))
-    return importlib.import_module(name)
+def load(name: str):
+    """The module of the registered script ``name`` (see :data:`SCRIPTS`), imported from its file once."""
+    stem = pathlib.Path(SCRIPTS[name].path).stem
+    if stem not in sys.modules:
+        spec = importlib.util.spec_from_file_location(stem, HERE / SCRIPTS[name].path)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[stem] = module
+        try:
+            spec.loader.exec_module(module)
+        except BaseException:
+            del sys.modules[stem]
+            raise
+    return sys.modules[stem]
 
 
 def _captured(fn: Callable, *args) -> str:
@@ -58,7 +80,7 @@ def _captured(fn: Callable, *args) -> str:
 
 
 def _kinematics(quick: bool) -> str:
-    m = _module("bench_kinematics")
+    m = load("kinematics")
     r = m.run(200, 2) if quick else m.run(4000, 7)
     return (
         f"`full25`, {r['points']} flesh points, {r['views']} views, {r['particles']} particles.\n\n"
@@ -70,59 +92,59 @@ def _kinematics(quick: bool) -> str:
 
 
 def _parsec(quick: bool) -> str:
-    m = _module("bench_parsec")
+    m = load("parsec")
     argv = ["--particles", "100", "--repeats", "2", "--numpy-repeats", "1"] if quick else ["--repeats", "21"]
     return _captured(m.main, m._args(argv))
 
 
 def _features(quick: bool) -> str:
-    m = _module("bench_features")
+    m = load("features")
     return _captured(m.main, ["--repeats", "3" if quick else "60"])
 
 
 def _render(quick: bool) -> str:
-    m = _module("bench_render")
+    m = load("render")
     return _captured(m.main, ["--quick", "--repeats", "2"] if quick else [])
 
 
 def _synth(quick: bool) -> str:
-    m = _module("bench_synth")
+    m = load("synth")
     return _captured(m.main, ["--frames", "120:128", "--size", "160x120"] if quick else [])
 
 
 def _likelihood(quick: bool) -> str:
-    return _captured(_module("bench_likelihood").main, ["--quick"] if quick else ["--per-cue", "--sweep"])
+    return _captured(load("likelihood").main, ["--quick"] if quick else ["--per-cue", "--sweep"])
 
 
 def _iros(quick: bool) -> str:
-    m = _module("iros_synthetic")
+    m = load("iros")
     return _captured(m.main, ["--quick"] if quick else [])
 
 
 def _foreground(quick: bool) -> str:
-    m = _module("foreground_iou")
+    m = load("foreground")
     frames, size = ("120:126", "160x120") if quick else ("120:180", "640x480")
     return m.to_markdown(m.evaluate(frames, size), frames, size)
 
 
 def _hybrid(quick: bool) -> str:
-    m = _module("hybrid_vs_apf")
+    m = load("hybrid")
     return _captured(m.main, ["--quick"] if quick else [])
 
 
 def _end_to_end(quick: bool) -> str:
-    m = _module("end_to_end")
+    m = load("end_to_end")
     return m.to_markdown(m.run(quick))
 
 
 def _scaling(quick: bool) -> str:
-    m = _module("scaling")
+    m = load("scaling")
     md = m.main(["--quick"] if quick else [])
     return md if quick else md + "\n\n![likelihood scaling](results/scaling.png)"
 
 
 def _accuracy(quick: bool) -> str:
-    m = _module("accuracy")
+    m = load("accuracy")
     log = lambda s: print(s, file=sys.stderr, flush=True)  # noqa: E731
     if quick:
         return m.run(quick=True, out=None, log=log)
@@ -131,27 +153,161 @@ def _accuracy(quick: bool) -> str:
 
 
 @dataclasses.dataclass(frozen=True)
-class Bench:
+class Script:
+    """A script under ``benchmarks/``: ``path`` (relative to ``benchmarks/``) and the arguments of the command that
+    runs it as measured; ``writes``: the files (glob patterns) under ``results/`` that this command regenerates;
+    ``fn``: for the benchmarks reported in ``RESULTS.md``, ``(quick) -> markdown`` (the same measurement, run in
+    this process); ``slow``: left out of a plain ``run.py`` (run with ``--all``); ``env``: variables the command
+    sets."""
+
     title: str
-    fn: Callable[[bool], str]
-    command: str
+    path: str
+    args: str = ""
+    writes: tuple[str, ...] = ()
+    fn: Callable[[bool], str] | None = None
     slow: bool = False
+    env: str = ""
+
+    @property
+    def command(self) -> str:
+        """The command line, from the repository root."""
+        words = [self.env, "python", f"benchmarks/{self.path}", self.args]
+        return " ".join(w for w in words if w)
 
 
-BENCHMARKS: dict[str, Bench] = {
-    "kinematics": Bench("Forward kinematics + projection", _kinematics, "benchmarks/bench_kinematics.py"),
-    "likelihood": Bench("Likelihood throughput vs NumPy", _likelihood, "benchmarks/bench_likelihood.py"),
-    "parsec": Bench("PARSEC bodytrack likelihood", _parsec, "benchmarks/bench_parsec.py --repeats 21"),
-    "features": Bench("Image features", _features, "benchmarks/bench_features.py --repeats 60"),
-    "render": Bench("Rendering", _render, "benchmarks/bench_render.py"),
-    "synth": Bench("Synthetic sequences", _synth, "benchmarks/bench_synth.py"),
-    "end_to_end": Bench("Frames per second end to end", _end_to_end, "benchmarks/end_to_end.py"),
-    "scaling": Bench("Likelihood scaling", _scaling, "benchmarks/scaling.py"),
-    "iros": Bench("IROS 2007 synthetic experiment", _iros, "benchmarks/iros_synthetic.py"),
-    "foreground": Bench("Foreground IoU", _foreground, "benchmarks/foreground_iou.py"),
-    "accuracy": Bench("Tracking accuracy", _accuracy, "benchmarks/accuracy.py", slow=True),
-    "hybrid": Bench("Hybrid vs APF", _hybrid, "benchmarks/hybrid_vs_apf.py", slow=True),
+#: every script under perf/ and experiments/, by name
+SCRIPTS: dict[str, Script] = {
+    # perf/: timed, each against a baseline run in the same process
+    "kinematics": Script("Forward kinematics + projection", "perf/bench_kinematics.py", fn=_kinematics),
+    "likelihood": Script(
+        "Likelihood throughput vs NumPy", "perf/bench_likelihood.py", "--per-cue --sweep", fn=_likelihood
+    ),
+    "parsec": Script("PARSEC bodytrack likelihood", "perf/bench_parsec.py", "--repeats 21", fn=_parsec),
+    "features": Script("Image features", "perf/bench_features.py", "--repeats 60", fn=_features),
+    "render": Script("Rendering", "perf/bench_render.py", fn=_render),
+    "synth": Script("Synthetic sequences", "perf/bench_synth.py", fn=_synth),
+    "end_to_end": Script("Frames per second end to end", "perf/end_to_end.py", fn=_end_to_end),
+    "scaling": Script(
+        "Likelihood scaling", "perf/scaling.py", writes=("scaling.md", "scaling.png"), fn=_scaling
+    ),
+    "scale": Script(
+        "Scaling beyond one device (sharded particles, batched runs, memory)", "perf/bench_scale.py"
+    ),
+    "compile_partitions": Script(
+        "Compile time of the partitioned / hierarchical step",
+        "perf/compile_partitions.py",
+        writes=("compile_partitions.md",),
+    ),
+    "profile_likelihood": Script(
+        "Where the compiled likelihood spends its time", "perf/profile_likelihood.py"
+    ),
+    # experiments/: accuracy tables over seeds, tracking experiments
+    "iros": Script(
+        "IROS 2007 synthetic experiment",
+        "experiments/iros_synthetic.py",
+        writes=("iros_synthetic.md",),
+        fn=_iros,
+    ),
+    "foreground": Script(
+        "Foreground IoU",
+        "experiments/foreground_iou.py",
+        "--frames 120:180 --size 640x480",
+        writes=("foreground_iou.md",),
+        fn=_foreground,
+    ),
+    "accuracy": Script(
+        "Tracking accuracy", "experiments/accuracy.py", writes=("accuracy.md",), fn=_accuracy, slow=True
+    ),
+    "hybrid": Script(
+        "Hybrid vs APF",
+        "experiments/hybrid_vs_apf.py",
+        writes=("hybrid_vs_apf.md", "hybrid_vs_apf.png"),
+        fn=_hybrid,
+        slow=True,
+    ),
+    "cue_sweeps": Script(
+        "Each cue's energy over a grid of two DOFs around the truth",
+        "experiments/cue_sweeps.py",
+        writes=("cue_sweep_*.png",),
+    ),
+    "synth_montages": Script(
+        "Montages of the synthetic sequences, one per rig preset",
+        "experiments/make_synth_montages.py",
+        writes=("synth_*.png",),
+    ),
+    "parsec_track": Script(
+        "PARSEC sequenceB_2 tracked, against bodytrack",
+        "experiments/parsec_track.py",
+        "--seeds 3 --report",
+        writes=("parsec_track.md",),
+        env="JAX_PLATFORMS=cpu",
+    ),
+    "parsec_overlay": Script(
+        "PARSEC sequenceB_2 frame 1: the tracked model over the four cameras",
+        "experiments/parsec_track.py",
+        "--overlay benchmarks/results/parsec_overlay.png",
+        writes=("parsec_overlay.png",),
+        env="JAX_PLATFORMS=cpu",
+    ),
+    "pose2sim_track": Script(
+        "Pose2Sim demo recording tracked, against Pose2Sim's triangulation",
+        "experiments/pose2sim_track.py",
+        "--out /tmp/p2s/full3 --cues foreground,edge_distance,coverage:4,keypoints:4 --report",
+        writes=("pose2sim.md", "pose2sim_overlay.png"),
+        env="JAX_PLATFORMS=cpu",
+    ),
 }
+
+#: the benchmarks reported in RESULTS.md, run in this process by ``run.py``
+BENCHMARKS: dict[str, Script] = {k: s for k, s in SCRIPTS.items() if s.fn is not None}
+
+#: the files under results/ that no registered command writes as a whole, and what makes them
+OTHER_RESULTS: dict[str, str] = {
+    "demo_table.txt": "`jaxmocap demo --out jaxmocap-demo` (copied from `jaxmocap-demo/`)",
+    "demo_overlay.png": "`jaxmocap demo --out jaxmocap-demo` (copied from `jaxmocap-demo/`)",
+    "likelihood.md": "notes on runs of `python benchmarks/perf/bench_likelihood.py` and "
+    "`python benchmarks/perf/profile_likelihood.py` (each table names its command)",
+    "scale.md": "notes; the tables are printed by `python benchmarks/perf/bench_scale.py` (its commands are in "
+    "the section Measurements)",
+    "gradients_shape_notebooks.md": "notes; numbers from `python benchmarks/experiments/hybrid_vs_apf.py`, "
+    "`jaxmocap track --filter hybrid` and the notebooks in `notebooks/`",
+}
+
+
+def made_by(name: str) -> str:
+    """What makes the file ``results/<name>``: the registered commands that write it, or its entry of
+    :data:`OTHER_RESULTS` (``""`` for an unknown file)."""
+    makers = [f"`{s.command}`" for s in SCRIPTS.values() if any(fnmatch.fnmatch(name, w) for w in s.writes)]
+    return "; ".join(makers) or OTHER_RESULTS.get(name, "")
+
+
+def first_line(name: str) -> str:
+    """The first line of the Markdown results file ``name``: an HTML comment naming what regenerates it (the
+    scripts write the same line, :func:`common.regenerate_line`)."""
+    makers = [s.command for s in SCRIPTS.values() if any(fnmatch.fnmatch(name, w) for w in s.writes)]
+    if len(makers) == 1:
+        return f"<!-- Regenerate: {makers[0]} -->"
+    return f"<!-- Made by: {made_by(name).replace('`', '')} -->"
+
+
+def results_index() -> str:
+    """The text of ``results/README.md``: every file under ``results/`` with the command that regenerates it."""
+    rows = []
+    for f in sorted(p.name for p in RESULTS_DIR.iterdir() if p.is_file() and p.name != "README.md"):
+        rows.append(f"| [{f}]({f}) | {made_by(f) or '**unknown**'} |")
+    return (
+        "# Results\n\n"
+        "Every file here and the command that regenerates it, run from the repository root (this index is written "
+        "by `python benchmarks/run.py --index`; `../RESULTS.md` holds the reports of `python benchmarks/run.py`).\n\n"
+        "| file | made by |\n|---|---|\n" + "\n".join(rows) + "\n"
+    )
+
+
+def run_script(s: Script) -> int:
+    """Run the command of a script that writes its own results (no ``fn``) in a child process; its exit status."""
+    env = dict(os.environ, **dict(kv.split("=", 1) for kv in s.env.split()))
+    argv = [sys.executable, str(HERE / s.path), *shlex.split(s.args)]
+    return subprocess.run(argv, cwd=HERE.parent, env=env, check=False).returncode
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -180,7 +336,7 @@ def machine_block(load: tuple[float, float, float]) -> str:
         f"{load[2]:.1f} (1 / 5 / 15 min); JAX devices: {devices}.  \n"
         f"Versions: Python {platform.python_version()}, JAX {jax.__version__}, jaxlib {jaxlib.__version__}, "
         f"NumPy {np.__version__}, OpenCV {cv2.__version__}.  \n"
-        f"Date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}."
+        f"Date: {common.stamp()}."
     )
 
 
@@ -210,16 +366,39 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--results", default=None, help=f"file to update (default {RESULTS.name}, not with --quick)"
     )
-    ap.add_argument("--list", action="store_true")
+    ap.add_argument("--list", action="store_true", help="every script, its command, and what it writes")
+    ap.add_argument("--index", action="store_true", help="rewrite results/README.md and exit")
     a = ap.parse_args(argv)
     if a.list:
-        for k, b in BENCHMARKS.items():
-            print(f"{k:12s} {b.title}{'  (slow)' if b.slow else ''}")
+        for k, b in SCRIPTS.items():
+            where = ", ".join((["RESULTS.md"] if b.fn else []) + list(b.writes)) or "prints"
+            print(f"{k:18s} {b.command}  [{where}]{'  (slow)' if b.slow else ''}")
         return 0
-    unknown = [n for n in a.only or [] if n not in BENCHMARKS]
+    if a.index:
+        (RESULTS_DIR / "README.md").write_text(results_index())
+        for p in sorted(RESULTS_DIR.glob("*.md")):  # the first line of each names what regenerates it
+            if p.name != "README.md":
+                lines = p.read_text().split("\n")
+                keep = lines[1:] if lines[0].startswith(("<!-- Regenerate:", "<!-- Made by:")) else lines
+                p.write_text("\n".join([first_line(p.name), *keep]))
+        return 0
+    unknown = [n for n in a.only or [] if n not in SCRIPTS]
     if unknown:
-        ap.error(f"unknown benchmark(s) {', '.join(unknown)}; choose from {', '.join(BENCHMARKS)}")
-    names = a.only or [k for k, b in BENCHMARKS.items() if a.all or a.quick or not b.slow]
+        ap.error(f"unknown benchmark(s) {', '.join(unknown)}; choose from {', '.join(SCRIPTS)}")
+    own = [n for n in a.only or [] if n not in BENCHMARKS]  # scripts that write their own results
+    if own and a.quick:
+        ap.error(f"no quick mode for {', '.join(own)}: they run their full command")
+    for n in own:
+        print(f"== {n}: {SCRIPTS[n].command}", file=sys.stderr, flush=True)
+        if run_script(SCRIPTS[n]) != 0:
+            return 1
+    if own and len(own) == len(a.only):
+        return 0
+    names = (
+        [n for n in a.only if n in BENCHMARKS]
+        if a.only
+        else [k for k, b in BENCHMARKS.items() if a.all or a.quick or not b.slow]
+    )
     out = pathlib.Path(a.results) if a.results else (None if a.quick else RESULTS)
     load = os.getloadavg()
 
@@ -243,8 +422,8 @@ def main(argv=None) -> int:
             print(f"   {name} failed: {type(e).__name__}: {e}", file=sys.stderr, flush=True)
         dt = time.monotonic() - t0
         stamp = (
-            f"_Generated {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())} by `python benchmarks/run.py --only "
-            f"{name}{' --quick' if a.quick else ''}` (same as `python {b.command}`), load average {la:.1f} at "
+            f"_Generated {common.stamp()} by `python benchmarks/run.py --only "
+            f"{name}{' --quick' if a.quick else ''}` (same as `{b.command}`), load average {la:.1f} at "
             f"start, {dt:.0f} s._"
         )
         print(md, flush=True)

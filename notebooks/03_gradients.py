@@ -12,7 +12,7 @@
 # ``∂ℓ/∂x`` in one reverse pass. We plot the gradient field over two joint angles of the left arm, then track a
 # short synthetic sequence with the APF and with the hybrid APF (:class:`jaxmocap.filters.hybrid.HybridAPF`:
 # normalised gradient steps on the best particles of each layer) at the same particle count.
-# The full comparison on real mocap (error against likelihood evaluations) is ``benchmarks/hybrid_vs_apf.py``.
+# The full comparison on real mocap (error against likelihood evaluations) is ``benchmarks/experiments/hybrid_vs_apf.py``.
 
 # %%
 import matplotlib

@@ -78,6 +78,37 @@ EXPECT = {
 }
 
 
+def test_every_script_is_registered():
+    """Every script under perf/ and experiments/ has an entry (its command) in the runner, and every entry a file."""
+    scripts = {
+        p.relative_to(BENCH).as_posix() for d in ("perf", "experiments") for p in (BENCH / d).glob("*.py")
+    }
+    assert scripts == {s.path for s in runner.SCRIPTS.values()}
+    assert set(runner.BENCHMARKS) <= set(runner.SCRIPTS)
+
+
+def test_every_result_names_its_command():
+    """Every file under results/ is listed in results/README.md with what regenerates it, and every Markdown
+    file there starts with that line."""
+    index = (BENCH / "results" / "README.md").read_text()
+    for p in sorted((BENCH / "results").iterdir()):
+        if p.name == "README.md":
+            continue
+        assert runner.made_by(p.name), p.name
+        assert f"| [{p.name}]({p.name}) | {runner.made_by(p.name)} |" in index, p.name
+        if p.suffix == ".md":
+            assert p.read_text().split("\n", 1)[0] == runner.first_line(p.name), p.name
+
+
+def test_scripts_import_no_other_script():
+    """Scripts share code through common, scenes and reference only."""
+    stems = {pathlib.Path(s.path).stem for s in runner.SCRIPTS.values()}
+    for s in runner.SCRIPTS.values():
+        text = (BENCH / s.path).read_text()
+        for stem in stems:
+            assert f"import {stem}\n" not in text and f"from {stem} import" not in text, (s.path, stem)
+
+
 def test_every_benchmark_has_an_expectation():
     assert set(EXPECT) == set(runner.BENCHMARKS)
 
@@ -109,7 +140,8 @@ def test_profile_names_the_kernels_and_their_contents(tmp_path):
     the compiled program (a tiny program whose one fusion holds a sine)."""
     import jax
     import jax.numpy as jnp
-    import profile_likelihood as prof
+
+    prof = runner.load("profile_likelihood")
 
     f = jax.jit(lambda x: jnp.sin(x) * 2.0 + 1.0)
     x = jnp.linspace(0.0, 1.0, 1 << 16)

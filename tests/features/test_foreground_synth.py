@@ -6,7 +6,7 @@ import pathlib
 import pytest
 
 _spec = importlib.util.spec_from_file_location(
-    "foreground_iou", pathlib.Path(__file__).parents[2] / "benchmarks" / "foreground_iou.py"
+    "foreground_iou", pathlib.Path(__file__).parents[2] / "benchmarks" / "experiments" / "foreground_iou.py"
 )
 foreground_iou = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(foreground_iou)

@@ -460,9 +460,9 @@ def test_configuration_errors():
 
 @pytest.mark.slow
 def test_iros_synthetic_benchmark_quick():
-    """Smoke run of benchmarks/iros_synthetic.py --quick: a full Markdown table with finite errors, the Kalman filter
+    """Smoke run of benchmarks/experiments/iros_synthetic.py --quick: a full Markdown table with finite errors, the Kalman filter
     (the exact posterior mean) at or below every particle filter."""
-    path = pathlib.Path(__file__).parents[2] / "benchmarks" / "iros_synthetic.py"
+    path = pathlib.Path(__file__).parents[2] / "benchmarks" / "experiments" / "iros_synthetic.py"
     spec = importlib.util.spec_from_file_location("iros_synthetic", path)
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)

@@ -22,17 +22,20 @@ sensitivity table costs little beyond the main one.
 
 Usage::
 
-    .venv/bin/python benchmarks/iros_synthetic.py          # 15 runs; writes benchmarks/results/iros_synthetic.md
-    .venv/bin/python benchmarks/iros_synthetic.py --quick  # 2 short runs (smoke test); writes nothing
+    .venv/bin/python benchmarks/experiments/iros_synthetic.py          # 15 runs; writes benchmarks/results/iros_synthetic.md
+    .venv/bin/python benchmarks/experiments/iros_synthetic.py --quick  # 2 short runs (smoke test); writes nothing
 """
 
 from __future__ import annotations
 
 import argparse
 import pathlib
+import sys
 import time
 from typing import NamedTuple
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmarks/: the shared modules
+import common
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -43,7 +46,7 @@ from jaxmocap.filters.apf import APF, ignore_layer
 from jaxmocap.filters.icondensation import ICondensation
 from jaxmocap.filters.sir import SIR
 
-RESULTS = pathlib.Path(__file__).parent / "results" / "iros_synthetic.md"
+RESULTS = common.RESULTS / "iros_synthetic.md"
 NAMES = ("SIR", "ICONDENSATION", "APF", "IAPF", "Kalman")
 KEY_IMPL = "rbg"  # XLA's RngBitGenerator keys: the same statistics as threefry, several times faster to compile on CPU
 
@@ -234,7 +237,7 @@ def main(argv=None) -> str:
     print(f"\n({time.perf_counter() - t0:.1f} s)")
     header = (
         "# IROS 2007 synthetic experiment (§IV-B-1, Fig. 4)\n\n"
-        "Command: `.venv/bin/python benchmarks/iros_synthetic.py` (model and choices: the module docstring).\n\n"
+        f"Command: `.venv/bin/python {common.script(__file__)}` (model and choices: the module docstring).\n\n"
         f"D = {cfg.dim}, T = {cfg.frames} frames, {cfg.runs} runs, N = {cfg.particles} likelihood evaluations per "
         f"frame, σ_dyn = {cfg.sigma_dyn}, σ_obs = {cfg.sigma_obs}, σ_det = {cfg.sigma_det}, "
         f"σ_prior = {cfg.sigma_prior}, mixture fractions dynamics/detector/prior = {cfg.dynamics_fraction}/"
@@ -245,8 +248,8 @@ def main(argv=None) -> str:
         f"\n\nSensitivity (same {cfg.runs} runs per row; 'deutscher' = β by Deutscher's rule at survival rate "
         f"{cfg.survival_target}, same diffusions):\n\n"
     )
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    RESULTS.write_text(header + md + "\n\n" + verdict(errors) + sens_header + sens + "\n")
+    text = header + md + "\n\n" + verdict(errors) + sens_header + sens + "\n"
+    common.write_result(RESULTS, text, f"python {common.script(__file__)}")
     return md
 
 

@@ -13,16 +13,19 @@ For every cue the energy of a 2-D grid of two arm angles (default: left shoulder
 left elbow flexion) around the fitted state of a later frame is plotted to
 ``benchmarks/results/cue_sweep_<cue>.png``; the offset of each minimum from the truth is printed.
 
-    python benchmarks/cue_sweeps.py [--size 320x240] [--steps 21] [--span 0.8] [--frame 6] [--quick]
+    python benchmarks/experiments/cue_sweeps.py [--size 320x240] [--steps 21] [--span 0.8] [--frame 6] [--quick]
 """
 
 from __future__ import annotations
 
 import argparse
 import pathlib
+import sys
 import tempfile
 import time
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmarks/: the shared modules
+import common
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -32,8 +35,6 @@ from jaxmocap.fit import ik
 from jaxmocap.geometry import body
 from jaxmocap.likelihood import compose as L
 from jaxmocap.synth import generate as synth
-
-RESULTS = pathlib.Path(__file__).resolve().parent / "results"
 
 #: every cue with the parameters used in the sweeps
 SWEEP_CUES = (
@@ -139,7 +140,7 @@ def run(
     span=0.8,
     frame=6,
     dofs=("left_shoulder_ry", "left_elbow"),
-    out_dir=RESULTS,
+    out_dir=common.RESULTS,
     cue_list=SWEEP_CUES,
     surface_points=600,
 ):
@@ -182,7 +183,7 @@ def main():
     ap.add_argument("--steps", type=int, default=21)
     ap.add_argument("--span", type=float, default=0.8)
     ap.add_argument("--frame", type=int, default=6)
-    ap.add_argument("--out", default=str(RESULTS))
+    ap.add_argument("--out", default=str(common.RESULTS))
     ap.add_argument("--quick", action="store_true", help="small images and grid (smoke test)")
     a = ap.parse_args()
     size = synth.parse_size(a.size)

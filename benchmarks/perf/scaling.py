@@ -14,7 +14,7 @@ particles = the rest pose + N(0, 0.05²) noise. Every point is the median of ``r
 Peak memory of each point: what XLA's compiled program allocates (``Compiled.memory_analysis()``: arguments +
 outputs + temporaries − aliased), the device memory the call needs beyond the Python process itself.
 
-    .venv/bin/python benchmarks/scaling.py [--quick] [--repeats 7]
+    .venv/bin/python benchmarks/perf/scaling.py [--quick] [--repeats 7]
 
 Writes ``benchmarks/results/scaling.png`` and ``benchmarks/results/scaling.md`` (not with ``--quick``).
 """
@@ -25,22 +25,21 @@ import argparse
 import math
 import os
 import pathlib
-import time
+import sys
 
 import numpy as np
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmarks/: the shared modules
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
-
+import common
 import cv2  # noqa: E402
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
-from jaxmocap import tracker  # noqa: E402
 from jaxmocap.features.observation import make_observation  # noqa: E402
 from jaxmocap.geometry import body, camera
 from jaxmocap.likelihood import compose as lk  # noqa: E402
-
-RESULTS = pathlib.Path(__file__).resolve().parent / "results"
+from jaxmocap.tracking import tracker  # noqa: E402
 
 
 def ring_rig(views: int, size: tuple[int, int]) -> camera.Rig:
@@ -88,13 +87,8 @@ def _peak_mb(jitted, *args) -> float:
 
 
 def _median(fn, repeats: int) -> float:
-    jax.block_until_ready(fn())  # compile
-    ts = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn())
-        ts.append(time.perf_counter() - t0)
-    return float(np.median(ts))
+    """Median seconds of ``fn()`` until its result is ready, after one call that compiles."""
+    return common.median_seconds(lambda: jax.block_until_ready(fn()), repeats, warmup=1)
 
 
 def _particles(model, n: int, seed: int = 0) -> jnp.ndarray:
@@ -277,11 +271,12 @@ def main(argv=None) -> str:
     md = to_markdown(res)
     print(md)
     if not a.quick:
-        plot(res, RESULTS / "scaling.png")
-        (RESULTS / "scaling.md").write_text(
-            "# Likelihood scaling\n\nCommand: `.venv/bin/python benchmarks/scaling.py`; plot: `scaling.png`.\n\n"
-            + md
-            + "\n"
+        plot(res, common.RESULTS / "scaling.png")
+        cmd = f"python {common.script(__file__)}"
+        common.write_result(
+            common.RESULTS / "scaling.md",
+            f"# Likelihood scaling\n\nCommand: `.venv/bin/{cmd}`; plot: `scaling.png`.\n\n" + md + "\n",
+            cmd,
         )
     return md
 

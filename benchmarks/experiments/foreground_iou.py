@@ -6,15 +6,18 @@ over frames and views). The static-background method gets the background plate (
 rendered without the person); the adaptive Gaussian starts from that plate; MOG2 learns it from the plate shown
 ``warmup`` times. Also reported: false-positive pixels per frame, to show what shadow / illumination handling buys.
 
-    python benchmarks/foreground_iou.py [--frames 120:180] [--size 320x240] [--out benchmarks/results/foreground_iou.md]
+    python benchmarks/experiments/foreground_iou.py [--frames 120:180] [--size 320x240] [--out benchmarks/results/foreground_iou.md]
 """
 
 from __future__ import annotations
 
 import argparse
 import pathlib
+import sys
 import tempfile
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmarks/: the shared modules
+import common
 import numpy as np
 
 from jaxmocap.features import foreground as fg
@@ -87,7 +90,7 @@ def to_markdown(rows: list[dict], frames: str, size: str) -> str:
     lines = [
         "# Foreground IoU on synthetic cluttered sequences (CMU 02_01 walk, stereo rig)",
         "",
-        f"Command: `python benchmarks/foreground_iou.py --frames {frames} --size {size}`; truth = the exact rendered "
+        f"Command: `python benchmarks/experiments/foreground_iou.py --frames {frames} --size {size}`; truth = the exact rendered "
         "masks; mean over frames and both views.",
         "",
         "| setting | method | IoU | false-positive px / frame |",
@@ -101,12 +104,14 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", default="120:180")
     ap.add_argument("--size", default="640x480")
-    ap.add_argument("--out", default="benchmarks/results/foreground_iou.md")
+    ap.add_argument("--out", default=str(common.RESULTS / "foreground_iou.md"))
     a = ap.parse_args(argv)
     rows = evaluate(a.frames, a.size)
     md = to_markdown(rows, a.frames, a.size)
     print(md)
-    pathlib.Path(a.out).write_text(md)
+    common.write_result(
+        pathlib.Path(a.out), md, f"python {common.script(__file__)} --frames {a.frames} --size {a.size}"
+    )
 
 
 if __name__ == "__main__":

@@ -15,24 +15,27 @@ unfused host image formation of :mod:`jaxmocap.synth.render` (``shade`` + ``comp
 ``virtual_depth`` in NumPy) in place of stage 2's fused shading. Wall and process CPU time are both given, with
 the load average (the CI-like machine is shared).
 
-    .venv/bin/python benchmarks/bench_synth.py [--frames 120:240] [--size 640x480]
+    .venv/bin/python benchmarks/perf/bench_synth.py [--frames 120:240] [--size 640x480]
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import pathlib
+import sys
 import tempfile
 import time
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmarks/: the shared modules
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from jaxmocap import synth  # noqa: E402
 from jaxmocap.io.mocap import eval_joints  # noqa: E402
+from jaxmocap.synth import generate as synth  # noqa: E402
 from jaxmocap.synth import render
 
 

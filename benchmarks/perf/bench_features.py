@@ -5,7 +5,7 @@ ellipse moving over it and sensor noise. Reports the median over repeated frame 
 whole ``FeatureExtractor`` call (including the copy of the maps to the device), as frame pairs per second, for a
 few configurations, and the share of each stage.
 
-    .venv/bin/python benchmarks/bench_features.py [--repeats 60] [--threads N]
+    .venv/bin/python benchmarks/perf/bench_features.py [--repeats 60] [--threads N]
 """
 
 from __future__ import annotations
@@ -13,10 +13,13 @@ from __future__ import annotations
 import argparse
 import os
 import pathlib
-import time
+import sys
 
 import cv2
 import numpy as np
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmarks/: the shared modules
+import common
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 
@@ -28,7 +31,7 @@ from jaxmocap.features.pipeline import FeatureConfig, FeatureExtractor  # noqa: 
 from jaxmocap.features.skin import default_skin_model  # noqa: E402
 from jaxmocap.geometry.camera import Rig  # noqa: E402
 
-DATA = pathlib.Path(__file__).resolve().parent.parent / "tests" / "data" / "features"
+DATA = common.ROOT / "tests" / "data" / "features"
 W, H = 640, 480
 
 
@@ -74,14 +77,7 @@ def interleaved_times(fns: dict, pairs, repeats: int) -> dict:
     for fn in fns.values():
         for p in pairs[:3]:
             fn(p)  # warm-up (first-call allocations, JAX dispatch caches)
-    times = {k: [] for k in fns}
-    for r in range(repeats):
-        p = pairs[r % len(pairs)]
-        for k, fn in fns.items():
-            t0 = time.perf_counter()
-            fn(p)
-            times[k].append(time.perf_counter() - t0)
-    return {k: np.asarray(v) for k, v in times.items()}
+    return common.interleaved_rounds(fns, repeats, lambda r: (pairs[r % len(pairs)],))
 
 
 def report(title: str, times: dict) -> dict:

@@ -1,20 +1,25 @@
 """Throughput of forward kinematics + projection of flesh points (full25, ~600 points, 2 views).
 
 Compares, in one process, the compiled JAX hot path (structure-of-arrays FK, vmapped over particles) with a NumPy
-implementation of the same arithmetic, vectorised over particles. Prints medians and the ratio.
+implementation of the same arithmetic, vectorised over particles (:func:`reference.numpy_baselines.fk_projection`).
+Prints medians and the ratio.
 
-    python benchmarks/bench_kinematics.py [--particles 4000] [--repeats 7] [--quick]
+    python benchmarks/perf/bench_kinematics.py [--particles 4000] [--repeats 7] [--quick]
 """
 
 from __future__ import annotations
 
 import argparse
-import time
+import pathlib
+import sys
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from bench_likelihood import np_segment_poses
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmarks/: the shared modules
+import common
+from reference.numpy_baselines import fk_projection
 
 from jaxmocap.geometry import body, camera, flesh, kinematics
 
@@ -24,29 +29,6 @@ def _stereo_rig():
     R = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, -1.0], [-1.0, 0.0, 0.0]])  # looking along −x, z up
     ts = [-R @ np.array([3.0, y, 1.0]) for y in (-0.15, 0.15)]
     return camera.from_opencv(np.stack([K, K]), np.zeros((2, 5)), np.stack([R, R]), np.stack(ts))
-
-
-def _numpy_pipeline(model, pts_local, seg, rig, X):
-    """The same arithmetic in NumPy (float64): FK over the tree (batched over particles, the NumPy FK of
-    ``bench_likelihood.py``), point transform, projection."""
-    R, t = np_segment_poses(model, X, np.float64)
-    R, t = R[:, seg], t[:, seg]
-    Xw = np.einsum("npij,pj->npi", R, pts_local) + t
-    Xc = np.einsum("vij,npj->nvpi", np.asarray(rig.R), Xw) + np.asarray(rig.t)[None, :, None, :]
-    K = np.asarray(rig.K)
-    u = K[None, :, 0, 0, None] * Xc[..., 0] / Xc[..., 2] + K[None, :, 0, 2, None]
-    v = K[None, :, 1, 1, None] * Xc[..., 1] / Xc[..., 2] + K[None, :, 1, 2, None]
-    return np.stack([u, v], -1)
-
-
-def _median_time(f, repeats):
-    f()
-    ts = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        f()
-        ts.append(time.perf_counter() - t0)
-    return float(np.median(ts))
 
 
 def run(particles: int = 4000, repeats: int = 7, points: int = 600) -> dict:
@@ -63,14 +45,16 @@ def run(particles: int = 4000, repeats: int = 7, points: int = 600) -> dict:
 
     f = jax.jit(jax.vmap(one))
     X = model.rest_pose + 0.3 * jax.random.normal(jax.random.key(0), (particles, model.num_dofs))
-    t_jax = _median_time(lambda: f(X).block_until_ready(), repeats)
+    t_jax = common.median_seconds(lambda: f(X).block_until_ready(), repeats, warmup=1)
     Xn = np.asarray(X, np.float64)
     pts = np.asarray(surf.local, np.float64)
     seg = np.asarray(surf.segment)
-    ref = _numpy_pipeline(model, pts, seg, rig, Xn)
+    ref = fk_projection(model, pts, seg, rig, Xn)
     np.testing.assert_allclose(np.asarray(f(X)), ref, atol=0.05)  # same arithmetic, float32 vs float64
     n_np = max(particles // 4, 100)
-    t_np = _median_time(lambda: _numpy_pipeline(model, pts, seg, rig, Xn[:n_np]), max(3, repeats // 2))
+    t_np = common.median_seconds(
+        lambda: fk_projection(model, pts, seg, rig, Xn[:n_np]), max(3, repeats // 2), warmup=1
+    )
     return {
         "particles": particles,
         "points": int(pts.shape[0]),

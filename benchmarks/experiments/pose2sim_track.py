@@ -12,8 +12,8 @@ Reported, over the tracked frames: per-joint and mean 3D distance (mm) to the ``
 set; the 2D distance (px, full-size images) of the tracked joints and of the reference's own markers to the
 detections (confidence > 0.3) of each camera. Usage::
 
-    .venv/bin/python benchmarks/pose2sim_track.py --out /tmp/p2s           # 4 cameras and the nearest pair
-    .venv/bin/python benchmarks/pose2sim_track.py --make-test-data tests/data/pose2sim_small
+    .venv/bin/python benchmarks/experiments/pose2sim_track.py --out /tmp/p2s           # 4 cameras and the nearest pair
+    .venv/bin/python benchmarks/experiments/pose2sim_track.py --make-test-data tests/data/pose2sim_small
 """
 
 from __future__ import annotations
@@ -26,6 +26,8 @@ import shutil
 import sys
 import time
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmarks/: the shared modules
+import common
 import cv2
 import jax.numpy as jnp
 import numpy as np
@@ -40,7 +42,6 @@ DERIVED = "derived_by_pose2sim_a948c20"
 TRC = f"{DERIVED}/pose-3d/S00_P00_T01_BalancingTrial_0-100.trc"
 CALIB = "calibration/Calib_qualisys_converted_by_pose2sim_a948c20.toml"
 CUES = "foreground,edge_distance,coverage:4,keypoints:4"
-RESULTS = pathlib.Path(__file__).resolve().parent / "results"
 
 
 def paths(root: pathlib.Path, images: bool = False) -> dict:
@@ -248,7 +249,7 @@ def make_test_data(dest: pathlib.Path, frames: list[int], scale: float) -> None:
         "OpenPose BODY_25B detections (`pose/camNN_json`), the triangulated reference (`pose-3d/"
         "S00_P00_T01_BalancingTrial_0-100.trc`) and the calibration (`S00_Calibration/Calib_qualisys.toml`) at\n"
         "commit a948c205cfe4ea5c22d6941929e8efaba591a59d (S00_P00_T01_BalancingTrial).\n\n"
-        f"Made by `benchmarks/pose2sim_track.py --make-test-data`: frames {frames} of every camera resized by {scale}\n"
+        f"Made by `benchmarks/experiments/pose2sim_track.py --make-test-data`: frames {frames} of every camera resized by {scale}\n"
         "(cam01/cam02 padded on the right from 1080 to the calibrated 1088 px first), JPEG quality 90;\n"
         "`background/` (JPEG quality 90) = per-pixel median of 15 frames without the subject's box, filled from\n"
         "`calibration/extrinsics/camNN_ext.png`; the detection JSONs and calibration copied unmodified;\n"
@@ -268,7 +269,9 @@ def main(argv=None) -> int:
     ap.add_argument("--cues", default=CUES, help=f"cues and weights (default {CUES})")
     ap.add_argument("--pair-only", action="store_true", help="only the 2-camera run")
     ap.add_argument("--no-pair", action="store_true", help="only the 4-camera run")
-    ap.add_argument("--report", action="store_true", help=f"write {RESULTS}/pose2sim.md and the overlay")
+    ap.add_argument(
+        "--report", action="store_true", help=f"write {common.RESULTS}/pose2sim.md and the overlay"
+    )
     ap.add_argument("--make-test-data", metavar="DIR", help="write the small test copy and exit")
     a = ap.parse_args(argv)
     if a.make_test_data:
@@ -309,9 +312,9 @@ def main(argv=None) -> int:
     (out / "pose2sim.json").write_text(json.dumps(keep, indent=1))
     print(table(results))
     if a.report:
-        RESULTS.mkdir(exist_ok=True)
-        save_overlay(results[0], RESULTS / "pose2sim_overlay.png")
-        cmd = "JAX_PLATFORMS=cpu .venv/bin/python benchmarks/pose2sim_track.py " + " ".join(
+        common.RESULTS.mkdir(exist_ok=True)
+        save_overlay(results[0], common.RESULTS / "pose2sim_overlay.png")
+        cmd = f"JAX_PLATFORMS=cpu .venv/bin/python {common.script(__file__)} " + " ".join(
             x for x in (sys.argv[1:] if argv is None else argv)
         )
         rows = []
@@ -347,7 +350,7 @@ def main(argv=None) -> int:
             )
             + "\n"
         )
-        (RESULTS / "pose2sim.md").write_text(text)
+        common.write_result(common.RESULTS / "pose2sim.md", text, cmd)
     return 0
 
 

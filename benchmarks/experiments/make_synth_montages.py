@@ -7,7 +7,7 @@ depth range), the part labels (in the part colours) and the RGB with the ground-
 through the written calibration (dots and the bones between them). Each panel is shown at 1/2.5 scale and the
 montage is stored as an adaptive 256-colour PNG to stay small.
 
-    .venv/bin/python benchmarks/make_synth_montages.py [--frame 12] [--keep]
+    .venv/bin/python benchmarks/experiments/make_synth_montages.py [--frame 12] [--keep]
 """
 
 from __future__ import annotations
@@ -15,8 +15,11 @@ from __future__ import annotations
 import argparse
 import pathlib
 import shutil
+import sys
 import time
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmarks/: the shared modules
+import common
 import cv2
 import numpy as np
 from PIL import Image
@@ -27,7 +30,6 @@ from jaxmocap.geometry.body import EVAL_JOINTS
 from jaxmocap.io import sequence as seqio
 from jaxmocap.synth import generate as synth
 
-RESULTS = pathlib.Path(__file__).parent / "results"
 PANEL = (256, 192)
 
 
@@ -95,14 +97,14 @@ def main() -> None:
     ap.add_argument("--frame", type=int, default=12, help="output frame shown (default 12)")
     ap.add_argument("--keep", action="store_true", help="keep the rendered sequence folders")
     args = ap.parse_args()
-    RESULTS.mkdir(exist_ok=True)
+    common.RESULTS.mkdir(exist_ok=True)
     for rig in synth.PRESETS:
-        out = RESULTS / f"synth_{rig}"
+        out = common.RESULTS / f"synth_{rig}"
         t0 = time.perf_counter()
         seq = synth.synthesize("demo", out, rig=rig, frames="120:240", fps=30, seed=1, overwrite=True)
         dt = time.perf_counter() - t0
         img = montage(seq, args.frame)
-        path = RESULTS / f"synth_{rig}.png"
+        path = common.RESULTS / f"synth_{rig}.png"
         Image.fromarray(img).quantize(256, method=Image.Quantize.MEDIANCUT).save(path, optimize=True)
         print(
             f"{rig}: {seq.num_frames} frames x {len(seq.views)} views in {dt:.1f} s (compilation included); "

@@ -18,7 +18,7 @@ Forced host devices are partitions of the same CPU: on a machine with few cores 
 throughput shows the overhead of the SPMD program, not a speed-up; the same script measures real devices (GPUs)
 unchanged.
 
-    .venv/bin/python benchmarks/bench_scale.py [--devices 1,2] [--particles 2048] [--out benchmarks/results/scale.md]
+    .venv/bin/python benchmarks/perf/bench_scale.py [--devices 1,2] [--particles 2048] [--out benchmarks/results/scale.md]
 """
 
 from __future__ import annotations
@@ -26,12 +26,16 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import pathlib
 import subprocess
 import sys
 import tempfile
 import time
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmarks/: the shared modules
+import common
+
+ROOT = str(common.ROOT)
 
 
 def _child(args) -> dict:
@@ -153,7 +157,7 @@ def main() -> None:
 
             seq = os.path.join(tmp, "seq")
             synth.synthesize("demo", seq, rig="stereo", frames=args.frames, fps=60.0, size="96x72", seed=0)
-        common = ["--seq", seq, "--layers", str(args.layers)]
+        seq_args = ["--seq", seq, "--layers", str(args.layers)]
         lines = [
             f"load average at start: {os.getloadavg()[0]:.1f} on {os.cpu_count()} logical CPUs",
             "",
@@ -164,7 +168,7 @@ def main() -> None:
             "|---|---|---|---|",
         ]
         for d in [int(x) for x in args.devices.split(",") if x]:
-            extra = common + ["--task", "throughput", "--particles", str(args.particles)]
+            extra = seq_args + ["--task", "throughput", "--particles", str(args.particles)]
             extra += ["--batch-particles", str(args.batch_particles), "--seeds", str(args.seeds)]
             r = _spawn(d, extra, 1200)
             print(d, r, flush=True)
@@ -186,7 +190,7 @@ def main() -> None:
         for n in [int(x) for x in args.sizes.split(",") if x]:
             row = {}
             for label, chunk in (("whole", 0), ("chunked", args.chunk)):
-                extra = common + ["--task", "memory", "--n", str(n), "--chunk", str(chunk)]
+                extra = seq_args + ["--task", "memory", "--n", str(n), "--chunk", str(chunk)]
                 if n in run_sizes:
                     extra.append("--execute")
                 row[label] = r = _spawn(1, extra, 1200)

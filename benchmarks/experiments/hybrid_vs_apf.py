@@ -30,18 +30,21 @@ many forward evaluations ("likelihood-evaluation equivalents"); the table also g
 
 Usage::
 
-    .venv/bin/python benchmarks/hybrid_vs_apf.py            # writes benchmarks/results/hybrid_vs_apf.{md,png}
-    .venv/bin/python benchmarks/hybrid_vs_apf.py --quick    # 1 run of 10 frames, APF and hybrid; writes nothing
+    .venv/bin/python benchmarks/experiments/hybrid_vs_apf.py            # writes benchmarks/results/hybrid_vs_apf.{md,png}
+    .venv/bin/python benchmarks/experiments/hybrid_vs_apf.py --quick    # 1 run of 10 frames, APF and hybrid; writes nothing
 """
 
 from __future__ import annotations
 
 import argparse
 import pathlib
+import sys
 import tempfile
 import time
 from typing import NamedTuple
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmarks/: the shared modules
+import common
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -58,7 +61,6 @@ from jaxmocap.likelihood import compose as L
 from jaxmocap.likelihood.gradients import batch_value_and_grad
 from jaxmocap.synth import generate as synth
 
-RESULTS = pathlib.Path(__file__).parent / "results"
 KEY_IMPL = "rbg"
 
 
@@ -152,15 +154,12 @@ def gradient_cost_ratio(sc: Scenario, n: int = 200, repeats: int = 9) -> float:
     vg = jax.jit(lambda X, o: batch_value_and_grad(lik.batch, X, o, 0))
     jax.block_until_ready(fwd(X, obs))
     jax.block_until_ready(vg(X, obs))
-    tf, tg = [], []
-    for _ in range(repeats):  # interleaved, so that a load change on the machine hits both
-        t0 = time.perf_counter()
-        jax.block_until_ready(fwd(X, obs))
-        tf.append(time.perf_counter() - t0)
-        t0 = time.perf_counter()
-        jax.block_until_ready(vg(X, obs))
-        tg.append(time.perf_counter() - t0)
-    return float(np.median(tg) / np.median(tf))
+    # interleaved, so that a load change on the machine hits both
+    t = common.interleaved_rounds(
+        {"f": lambda: jax.block_until_ready(fwd(X, obs)), "g": lambda: jax.block_until_ready(vg(X, obs))},
+        repeats,
+    )
+    return float(np.median(t["g"]) / np.median(t["f"]))
 
 
 class Config(NamedTuple):
@@ -243,11 +242,11 @@ def main(argv=None) -> str:
     print(md)
     print(f"\n({time.perf_counter() - t_start:.0f} s)")
     if not args.quick:
-        RESULTS.mkdir(parents=True, exist_ok=True)
-        plot(rows, RESULTS / "hybrid_vs_apf.png")
+        common.RESULTS.mkdir(parents=True, exist_ok=True)
+        plot(rows, common.RESULTS / "hybrid_vs_apf.png")
         header = (
             "# Hybrid (gradient) APF against the plain APF\n\n"
-            "Command: `.venv/bin/python benchmarks/hybrid_vs_apf.py` (scenario and choices: the module docstring). "
+            f"Command: `.venv/bin/python {common.script(__file__)}` (scenario and choices: the module docstring). "
             f"Frames {cfg.frames} of the bundled CMU walk at 30 fps, ring4 rig, 320×240; L = {cfg.layers} layers, "
             f"survival rate {cfg.survival}; hybrid: k = {cfg.best_k} best particles, S = {cfg.steps} normalised "
             f"steps of {cfg.learning_rate} diffusion std per layer; {cfg.runs} runs per configuration.\n\n"
@@ -255,7 +254,9 @@ def main(argv=None) -> str:
             f"{ratio:.2f} forward evaluations (median, same process); 'equivalent' counts use that ratio.\n\n"
             "![error vs evaluations](hybrid_vs_apf.png)\n\n"
         )
-        (RESULTS / "hybrid_vs_apf.md").write_text(header + md + "\n")
+        common.write_result(
+            common.RESULTS / "hybrid_vs_apf.md", header + md + "\n", f"python {common.script(__file__)}"
+        )
     return md
 
 

@@ -7,14 +7,18 @@ close-up: the body covers most of the frame — the worst case for screen-space 
 ready, is printed as frames/s, with the ratio against the same configuration without culling (the baseline: every
 pixel against every primitive), measured in the same process, interleaved.
 
-    .venv/bin/python benchmarks/bench_render.py [--repeats 30]
+    .venv/bin/python benchmarks/perf/bench_render.py [--repeats 30]
 """
 
 from __future__ import annotations
 
 import argparse
 import os
-import time
+import pathlib
+import sys
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmarks/: the shared modules
+import common
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 
@@ -22,7 +26,7 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from jaxmocap import render  # noqa: E402
+from jaxmocap.synth import render  # noqa: E402
 
 W, H = 640, 480
 K = np.array([[520.0, 0.0, 319.5], [0.0, 520.0, 239.5], [0.0, 0.0, 1.0]])
@@ -110,12 +114,9 @@ def main(argv=None) -> None:
     for cfg in configs:
         out = jax.block_until_ready(call(cfg))
         coverage[cfg[0]] = float(np.mean(np.asarray(out.mask)))
-    times = {cfg: [] for cfg in configs}
-    for _ in range(args.repeats):
-        for cfg in configs:
-            t0 = time.perf_counter()
-            jax.block_until_ready(call(cfg))
-            times[cfg].append(time.perf_counter() - t0)
+    times = common.interleaved_rounds(
+        {cfg: lambda cfg=cfg: jax.block_until_ready(call(cfg)) for cfg in configs}, args.repeats
+    )
 
     print(
         f"{'view':>6} {'caps':>6} {'normals':>7} {'tile':>4} {'cull':>5} {'ms':>8} {'frames/s':>9} {'vs no cull':>10}"

@@ -1,13 +1,13 @@
 """Where the compiled likelihood spends its time: XLA's own per-kernel trace of ``jax.jit(Likelihood.batch)``.
 
-Runs a configuration of :mod:`bench_likelihood` under ``jax.profiler.trace`` and sums the trace's kernel events
+Runs a configuration of ``bench_likelihood.py`` (:data:`scenes.CONFIGS`) under ``jax.profiler.trace`` and sums the trace's kernel events
 (XLA CPU "thunks": one fused loop, a scatter, a library reduction or dot, ...) by name over the profiled calls, then
 lists the heaviest with what each fusion contains (counts of its HLO operations, from the compiled program's text),
 so that a kernel that recomputes the projection (dozens of multiplies), gathers per point or transposes stands
 out. Times are CPU time summed over both worker threads, per call; the tracer adds some overhead.
 
-    .venv/bin/python benchmarks/profile_likelihood.py                      # upper14 with the IROS 2007 cues
-    .venv/bin/python benchmarks/profile_likelihood.py --config full25-lk --top 15
+    .venv/bin/python benchmarks/perf/profile_likelihood.py                      # upper14 with the IROS 2007 cues
+    .venv/bin/python benchmarks/perf/profile_likelihood.py --config full25-lk --top 15
 """
 
 from __future__ import annotations
@@ -26,8 +26,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import bench_likelihood as B  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: the shared modules
+import scenes
 
 
 def fusion_contents(hlo: str) -> dict[str, collections.Counter]:
@@ -57,14 +57,16 @@ def kernel_times(trace_dir: str, calls: int) -> collections.Counter:
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--config", default="upper14-iros", choices=sorted({**B.CONFIGS, **B.SAMPLE_SWEEP}))
+    ap.add_argument(
+        "--config", default="upper14-iros", choices=sorted({**scenes.CONFIGS, **scenes.SAMPLE_SWEEP})
+    )
     ap.add_argument("--particles", type=int, default=8192)
     ap.add_argument("--calls", type=int, default=3)
     ap.add_argument("--top", type=int, default=12)
     a = ap.parse_args(argv)
     rng = np.random.default_rng(0)
-    model, rig, obs, lik, _ = B.build(a.config, rng)
-    X = jnp.asarray(B.particles(model, a.particles, rng))
+    model, rig, obs, lik, _ = scenes.build(a.config, rng)
+    X = jnp.asarray(scenes.particles(model, a.particles, rng))
     f = jax.jit(lik.batch)
     f(X, obs, 0).block_until_ready()
     contents = fusion_contents(f.lower(X, obs, 0).compile().as_text())

@@ -28,7 +28,7 @@ CPU ms/frame: process CPU time (all threads) of features + step, median over fra
 wall-clock rate is depressed by other jobs, and ``1000 / CPU ms`` is what one otherwise idle core would sustain.
 The quick mode (smoke test) reads the rendered masks as the foreground instead of subtracting a background.
 
-    .venv/bin/python benchmarks/end_to_end.py [--frames 20] [--quick]
+    .venv/bin/python benchmarks/perf/end_to_end.py [--frames 20] [--quick]
 """
 
 from __future__ import annotations
@@ -37,18 +37,22 @@ import argparse
 import collections
 import os
 import pathlib
+import sys
 import tempfile
 import time
 
 import numpy as np
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmarks/: the shared modules
+import common
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
-from jaxmocap import tracker  # noqa: E402
 from jaxmocap.synth import generate as synth
+from jaxmocap.tracking import tracker  # noqa: E402
 
 #: (label, model, filter, particles per layer / partition, layers, cues, likelihood evaluations per frame, target)
 CONFIGS = (
@@ -113,13 +117,7 @@ def likelihood_seconds(run: ProfiledTracker, batches, repeats: int = 5) -> float
     total = 0.0
     for n, calls in sorted(collections.Counter(batches).items()):
         X = jnp.asarray(x0 + np.random.default_rng(0).normal(0, 0.02, (n, x0.size)).astype(np.float32))
-        f(X, obs).block_until_ready()
-        ts = []
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            f(X, obs).block_until_ready()
-            ts.append(time.perf_counter() - t0)
-        total += float(np.median(ts)) * calls
+        total += common.median_seconds(lambda X=X: f(X, obs).block_until_ready(), repeats, warmup=1) * calls
     return total
 
 

@@ -9,8 +9,8 @@ maps), against bodytrack's serial 0.28 s/frame (4000 × 5) and 0.062 s/frame (10
 (FORMAT.md). Initialisation as bodytrack's: particles ``InitialPose + N(0, σ_0)`` weighted against frame 0 with
 its β. Usage::
 
-    JAX_PLATFORMS=cpu .venv/bin/python benchmarks/parsec_track.py [--seeds 3] [--report]
-    JAX_PLATFORMS=cpu .venv/bin/python benchmarks/parsec_track.py --overlay benchmarks/results/parsec_overlay.png
+    JAX_PLATFORMS=cpu .venv/bin/python benchmarks/experiments/parsec_track.py [--seeds 3] [--report]
+    JAX_PLATFORMS=cpu .venv/bin/python benchmarks/experiments/parsec_track.py --overlay benchmarks/results/parsec_overlay.png
 
 ``--overlay PATH`` skips the comparison: it tracks frames 0–1 with 1000 particles × 3 layers (seed 0) and writes a
 2×2 montage of the four cameras of frame 1 (each 320×240): the projected cones of ``parsec31`` (green), its bones
@@ -23,8 +23,11 @@ import argparse
 import itertools
 import os
 import pathlib
+import sys
 import time
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmarks/: the shared modules
+import common
 import cv2
 import jax
 import jax.numpy as jnp
@@ -37,7 +40,7 @@ from jaxmocap.parsec import track as ptrack
 from jaxmocap.parsec.annealing import parsec_apf
 
 DATA = pathlib.Path(os.environ.get("JAXMOCAP_DATA", "/work/shared/data")) / "parsec"
-RESULTS = pathlib.Path(__file__).resolve().parent / "results"
+
 CONFIGS = ((4000, 5), (1000, 3))
 BODYTRACK_S = {(4000, 5): 0.284, (1000, 3): 0.062}
 
@@ -130,7 +133,7 @@ def save_overlay(seq, obs, path: pathlib.Path, frame: int = 1, seed: int = 0) ->
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, default=3)
-    ap.add_argument("--report", action="store_true", help=f"write {RESULTS}/parsec_track.md")
+    ap.add_argument("--report", action="store_true", help=f"write {common.RESULTS}/parsec_track.md")
     ap.add_argument(
         "--overlay",
         type=pathlib.Path,
@@ -180,9 +183,10 @@ def main(argv=None) -> int:
         acc = [x for x in lines if isinstance(x, str)]
         tim = [x[1] for x in lines if not isinstance(x, str)]
         dev = jax.devices()[0]
+        cmd = f"JAX_PLATFORMS=cpu .venv/bin/python {common.script(__file__)} --seeds {a.seeds} --report"
         text = (
             "# PARSEC sequenceB_2: APF (PARSEC mode) + parsec31 + PARSEC likelihood vs bodytrack\n\n"
-            f"Reproduce: `JAX_PLATFORMS=cpu .venv/bin/python benchmarks/parsec_track.py --seeds {a.seeds} --report`\n\n"
+            f"Reproduce: `{cmd}`\n\n"
             f"Seeds 0–{a.seeds - 1}; distances are the mean over the 15 evaluation joints (mm) of the parsec31 model "
             "(PARSEC's 10 cylinders).\n\n"
             "| config | frame | to bodytrack's pose: mean (min–max over seeds) | our spread (between seeds) |\n"
@@ -192,8 +196,7 @@ def main(argv=None) -> int:
             + "\n".join(tim)
             + "\n"
         )
-        RESULTS.mkdir(exist_ok=True)
-        (RESULTS / "parsec_track.md").write_text(text)
+        common.write_result(common.RESULTS / "parsec_track.md", text, cmd)
     return 0
 
 

@@ -1,97 +1,33 @@
-"""Speed of the composed cue likelihood (``Likelihood.batch``, jitted) against a NumPy implementation of the same
-computation in the same process (issue 5).
+"""NumPy baselines of the benchmarks: the same computations as the compiled JAX paths, written with NumPy and
+vectorised over particles (the leading axis), run in the same process as the JAX side and checked to agree with it
+before timing.
 
-Configurations (2 views, 640×480, synthetic observation maps):
-
-* ``upper14-iros``: ``upper14`` with the IROS 2007 cue set (edge_distance, colour_histogram, blobs3d, skin,
-  homogeneous_colour); target ≥ 100 k particles/s on 2 cores;
-* ``full25-lk``: ``full25`` with edges + foreground + depth; target ≥ 50 k particles/s.
-
-Particles are drawn around a standing pose in view of both cameras. JAX: median (and minimum) wall time of
-``--repeats`` calls after compilation. NumPy: the same FK (twists), flesh points, occluding contours,
-projection, facing test, nearest-pixel lookups and cue energies, vectorised over particles (float32), median of
-``--numpy-repeats``; both are checked to agree on the first 64 particles before timing.
-
-``upper14-iros-P300`` / ``-P150``: the IROS 2007 set with 300 / 150 flesh surface samples instead of 600 (the
-cost is linear in them). ``--per-cue`` times each IROS 2007 cue alone, with the geometry it needs. ``--sweep``
-times the first two configurations at 10², 10³, 10⁴ and 10⁵ particles, each against NumPy.
-
-    .venv/bin/python benchmarks/bench_likelihood.py [--particles 8192] [--repeats 7] [--per-cue] [--sweep] [--quick]
+* :func:`np_segment_poses`, :func:`fk_projection`: forward kinematics (product of exponentials over the tree) and
+  projection of flesh points (``perf/bench_kinematics.py``);
+* :class:`NumpyLikelihood`: the composed cue likelihood of :class:`jaxmocap.likelihood.compose.Likelihood` for the
+  cues of ``perf/bench_likelihood.py``, on the 640×480 stereo scene of :mod:`scenes` (FK, flesh points, occluding
+  contours of cones and ellipsoids, projection, facing test, nearest-pixel lookups, cue energies; float32);
+* :func:`np_loglik`: PARSEC bodytrack's likelihood (``perf/bench_parsec.py``), written with batched 3×3 matrices
+  following bodytrack's C++ step by step, float32 like the C++.
 """
 
 from __future__ import annotations
 
-import argparse
-import os
-import time
-
 import jax
 import jax.numpy as jnp
 import numpy as np
+from scenes import H, W
 
-from jaxmocap.features.observation import make_observation
-from jaxmocap.geometry import body, camera, flesh
-from jaxmocap.likelihood import colour_cues, cues
+from jaxmocap.geometry import camera, flesh
 from jaxmocap.likelihood import compose as L
-from jaxmocap.synth.stage import look_at
+from jaxmocap.likelihood import cues
+from jaxmocap.parsec import likelihood as pl
+from jaxmocap import parsec
 
-W, H = 640, 480
 F = np.float32
 
-IROS_CUES = ("edge_distance", "colour_histogram", "blobs3d", "skin", "homogeneous_colour")
-#: name -> (body model, cues, target particles/s, flesh surface samples)
-CONFIGS = {
-    "upper14-iros": ("upper14", IROS_CUES, 100_000, 600),
-    "full25-lk": ("full25", ("edges", "foreground", "depth"), 50_000, 600),
-}
-#: the IROS 2007 set with fewer surface samples (the cost is linear in them): how far the default is from the target
-SAMPLE_SWEEP = {
-    "upper14-iros-P300": ("upper14", IROS_CUES, 100_000, 300),
-    "upper14-iros-P150": ("upper14", IROS_CUES, 100_000, 150),
-}
-
-
 # ---------------------------------------------------------------------------------------------------------------
-# Scene
-
-
-def stereo_rig() -> camera.Rig:
-    """Two cameras 30 cm apart, 1.3 m high, 3.5 m from the subject (the IROS 2007 robot head), 640×480."""
-    Rs, ts = zip(*[look_at(np.array([3.5, y, 1.3]), [0.0, 0.0, 1.0]) for y in (-0.15, 0.15)], strict=True)
-    K = np.array([[500.0, 0.0, 319.5], [0.0, 500.0, 239.5], [0.0, 0.0, 1.0]])
-    return camera.from_opencv(
-        np.stack([K, K]), np.zeros((2, 5)), np.stack(Rs), np.stack(ts), image_size=[(W, H)] * 2
-    )
-
-
-def observation(rig, rng):
-    """Synthetic maps of the right shapes and ranges (smooth random fields: the timing does not depend on content)."""
-
-    def field(scale=1.0):
-        small = rng.uniform(0, 1, (2, H // 16 + 1, W // 16 + 1)).astype(F)
-        return np.repeat(np.repeat(small, 16, 1), 16, 2)[:, :H, :W] * scale
-
-    fg = (field() > 0.3).astype(F)
-    return make_observation(
-        rig,
-        foreground=fg,
-        edges=field(),
-        edge_dt=field(40.0),
-        skin=field(),
-        depth=np.where(fg > 0, 2.5 + field(1.0), 0.0).astype(F),
-        rgb=np.stack([field(), field(), field()], -1),
-        blobs3d=np.array([[0.0, 0.0, 1.6], [0.3, 0.25, 1.2], [0.3, -0.25, 1.2]]),
-    )
-
-
-def particles(model, n, rng):
-    x = np.asarray(model.rest_pose, F).copy()
-    noise = rng.normal(0.0, 0.05, (n, model.num_dofs)).astype(F)
-    return np.clip(x + noise, np.asarray(model.lower), np.asarray(model.upper)).astype(F)
-
-
-# ---------------------------------------------------------------------------------------------------------------
-# NumPy implementation (particles on the first axis)
+# Body model: FK, projection, contours, the composed likelihood (particles on the first axis)
 
 
 def _axis_angle(a, th, dtype=F):
@@ -104,7 +40,7 @@ def _axis_angle(a, th, dtype=F):
 
 def np_segment_poses(model, X, dtype=F):
     """FK (product of exponentials, :func:`jaxmocap.geometry.kinematics.segment_poses`) for ``X (N, D)`` in ``dtype``
-    (also the NumPy baseline of ``bench_kinematics.py``)."""
+    → world rotations ``(N, S, 3, 3)`` and translations ``(N, S, 3)`` of the segments."""
     top = model.topology
     rest, off, axis = (np.asarray(a, dtype) for a in (model.rest_rotation, model.offset, model.dof_axis))
     N = X.shape[0]
@@ -241,7 +177,7 @@ class NumpyLikelihood:
         if obs.has("rgb"):
             c8 = np.round(np.clip(np.asarray(obs.rgb), 0, 1) * 255).astype(np.int32)
             self.rgb = (c8.reshape(-1, 3) / F(255)).astype(F)
-            self.bins = np.asarray(colour_cues._colour_bins(jnp.asarray(c8), 4, "rgb")).reshape(-1)
+            self.bins = np.asarray(cues._colour_bins(jnp.asarray(c8), 4, "rgb")).reshape(-1)
         self.obs = obs
         self.refs = lik.references
 
@@ -348,142 +284,187 @@ class NumpyLikelihood:
         return np.where(np.isfinite(ll), ll, -np.inf)
 
 
+def fk_projection(model, pts_local, seg, rig, X):
+    """FK + projection of flesh points in NumPy (float64), the arithmetic of ``perf/bench_kinematics.py``'s JAX
+    path: FK over the tree (:func:`np_segment_poses`, batched over particles), transform of the points
+    ``pts_local (P, 3)`` of segments ``seg (P,)``, pinhole projection by ``rig`` (no distortion) → ``(N, V, P, 2)``."""
+    R, t = np_segment_poses(model, X, np.float64)
+    R, t = R[:, seg], t[:, seg]
+    Xw = np.einsum("npij,pj->npi", R, pts_local) + t
+    Xc = np.einsum("vij,npj->nvpi", np.asarray(rig.R), Xw) + np.asarray(rig.t)[None, :, None, :]
+    K = np.asarray(rig.K)
+    u = K[None, :, 0, 0, None] * Xc[..., 0] / Xc[..., 2] + K[None, :, 0, 2, None]
+    v = K[None, :, 1, 1, None] * Xc[..., 1] / Xc[..., 2] + K[None, :, 1, 2, None]
+    return np.stack([u, v], -1)
+
+
 # ---------------------------------------------------------------------------------------------------------------
+# PARSEC bodytrack's likelihood, vectorised over particles
+
+_XR90 = np.array([[1, 0, 0], [0, 0, 1], [0, -1, 0]], F)
+_XR180 = np.diag([1, -1, -1]).astype(F)
+_XR270 = np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]], F)
+_YR90 = np.array([[0, 0, -1], [0, 1, 0], [1, 0, 0]], F)
+_YR180 = np.diag([-1, 1, -1]).astype(F)
+_ZR180 = np.diag([-1, -1, 1]).astype(F)
 
 
-def build(config: str, rng):
-    preset, names, target, points = {**CONFIGS, **SAMPLE_SWEEP}[config]
-    model = getattr(body, preset)()
-    rig = stereo_rig()
-    obs = observation(rig, rng)
-    lik = L.Likelihood.create(model, rig, [L.Cue(n) for n in names], surface_points=points)
-    if lik.needs_references:
-        lik = lik.with_references(model.rest_pose, obs)
-    return model, rig, obs, lik, target
+def _rot(axis, a):
+    c, s = np.cos(a).astype(F), np.sin(a).astype(F)
+    o, z = np.ones_like(c), np.zeros_like(c)
+    if axis == 0:
+        m = [[o, z, z], [z, c, -s], [z, s, c]]
+    elif axis == 1:
+        m = [[c, z, s], [z, o, z], [-s, z, c]]
+    else:
+        m = [[c, -s, z], [s, c, z], [z, z, o]]
+    return np.stack([np.stack(r, -1) for r in m], -2)
 
 
-def _time(f, repeats):
-    ts = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        f()
-        ts.append(time.perf_counter() - t0)
-    return float(np.median(ts)), float(np.min(ts))
+def _euler_inv(th, ph, ta):
+    """``inv(Rz(ta) Rx(th) Ry(ph))`` for ``(N,)`` angles."""
+    E = _rot(2, ta) @ _rot(0, th) @ _rot(1, ph)
+    return np.swapaxes(E, -1, -2)
 
 
-def run(config, n, repeats, np_repeats, rng):
-    model, rig, obs, lik, target = build(config, rng)
-    X = jnp.asarray(particles(model, n, rng))
-    fj = jax.jit(lik.batch)
-    t0 = time.perf_counter()
-    ll = np.asarray(fj(X, obs, 0))
-    compile_s = time.perf_counter() - t0
-    nl = NumpyLikelihood(lik, obs)
-    Xn = np.asarray(X)
-    ref = nl(Xn[:64])
-    # nearest-pixel rounding of a sample exactly on a pixel edge may differ between the two: compare robustly
-    rel = np.abs(ll[:64] - ref) / np.maximum(np.abs(ref), 1e-3)
-    agree = float(np.median(rel)), float(np.quantile(rel, 0.9))
-    tj, tj_min = _time(lambda: fj(X, obs, 0).block_until_ready(), repeats)
-    tn, _ = _time(lambda: nl(Xn), np_repeats)
-    return dict(
-        config=config,
-        particles=n,
-        compile_s=compile_s,
-        jax_s=tj,
-        jax_min_s=tj_min,
-        numpy_s=tn,
-        jax_pps=n / tj,
-        numpy_pps=n / tn,
-        target=target,
-        agree=agree,
-        P=lik.surface.local.shape[0],
+def np_cylinder_poses(limbs, L, X):
+    """``(N, 10, 3, 4)`` poses following BodyGeometry.cpp step by step."""
+    N = len(X)
+    a = X.T
+    z = np.zeros(N, F)
+    Rp = _rot(2, a[2]) @ _rot(0, a[0]) @ _rot(1, a[1])
+    tp = np.stack([a[3], a[4], a[5]], -1)
+
+    def pre(R, t, v):
+        return t + R @ np.asarray(v, F)
+
+    out = [None] * 10
+    out[0] = (Rp, tp)
+    for side, (hip, knee, off, l1) in enumerate(((6, 9, L[1], 2), (10, 13, -L[5], 6))):
+        R = Rp @ _YR180
+        t = pre(R, tp, [0, off, 0])
+        R = R @ _euler_inv(a[hip], a[hip + 1], a[hip + 2])
+        out[1 + 2 * side] = (R, t)
+        t = pre(R, t, [0, 0, L[l1]])
+        R = R @ _euler_inv(z, a[knee], z)
+        out[2 + 2 * side] = (R, t)
+    Rt = Rp @ _XR180 @ _euler_inv(z, a[26], a[27])
+    tt = pre(Rt, tp, [0, 0, -L[0]])
+    r = _XR90 @ _ZR180 @ _YR90
+    for side, (cl, sh, el, rot, lc, lu) in enumerate(
+        ((14, 16, 19, _XR90, 9, 10), (20, 22, 25, _XR270, 13, 14))
+    ):
+        R = Rt @ rot @ _euler_inv(a[cl], a[cl + 1], z)
+        t = pre(R, tt, [0, 0, -L[lc]])
+        R = R @ r @ _euler_inv(a[sh], a[sh + 1], a[sh + 2])
+        out[5 + 2 * side] = (R, t)
+        t = pre(R, t, [0, 0, -L[lu]])
+        R = R @ _euler_inv(z, a[el], z)
+        out[6 + 2 * side] = (R, t)
+    out[9] = (Rt @ _XR180 @ _euler_inv(a[28], a[29], a[30]), tt)
+    R = (
+        np.stack([o[0] for o in out], 1)
+        * np.concatenate([limbs[:, 2:4], np.ones((10, 1), F)], 1)[None, :, None, :]
     )
+    t = np.stack([o[1] for o in out], 1)
+    return np.concatenate([R, t[..., None]], -1)
 
 
-def per_cue(config: str, n: int, repeats: int, rng) -> list[tuple[str, float]]:
-    """``(cue, median seconds)`` of the jitted likelihood of each cue of ``config`` alone (same particles and
-    surface samples; each includes the FK / projection that cue needs, which the full set shares), then of the
-    full set."""
-    model, rig, obs, lik, _ = build(config, rng)
-    X = jnp.asarray(particles(model, n, rng))
-    points = lik.surface.local.shape[0]
+def np_corners(limbs, length, cams, P):
+    """``(N, V, 10, 4, 2)`` projected corners."""
+    A, t = P[..., :3], P[..., 3]
+    Ainv = np.linalg.inv(A)
     out = []
-    for cue in lik.cues:
-        one = L.Likelihood.create(model, rig, [cue], surface_points=points)
-        if one.needs_references:
-            one = one.with_references(model.rest_pose, obs)
-        f = jax.jit(one.batch)
-        f(X, obs, 0).block_until_ready()
-        out.append((cue.name, _time(lambda f=f: f(X, obs, 0).block_until_ready(), repeats)[0]))
-    f = jax.jit(lik.batch)
-    f(X, obs, 0).block_until_ready()
-    out.append(("all together", _time(lambda: f(X, obs, 0).block_until_ready(), repeats)[0]))
-    return out
+    for v in range(len(cams.fc)):
+        e = np.einsum("npij,npj->npi", Ainv, cams.eye[v].astype(F) - t)
+        r = np.stack([-e[..., 0], -e[..., 1]], -1)
+        r2 = np.stack([-r[..., 1], r[..., 0]], -1) / np.linalg.norm(r, axis=-1, keepdims=True)
+        pts = []
+        for rad, zz in (
+            (-limbs[:, 0], 0.0),
+            (-limbs[:, 1], length),
+            (limbs[:, 1], length),
+            (limbs[:, 0], 0.0),
+        ):
+            loc = np.concatenate(
+                [
+                    rad[:, None] * r2,
+                    np.broadcast_to(np.asarray(zz, F), rad.shape)[None, :, None] + 0 * r2[..., :1],
+                ],
+                -1,
+            )
+            pts.append(np.einsum("npij,npj->npi", A, loc) + t)
+        X = np.stack(pts, 2)  # (N, 10, 4, 3)
+        Xc = X @ cams.R[v].T.astype(F) + cams.T[v].astype(F)
+        x, y = Xc[..., 0] / Xc[..., 2], Xc[..., 1] / Xc[..., 2]
+        r2_ = x * x + y * y
+        kc = cams.kc[v].astype(F)
+        d = 1 + kc[0] * r2_ + kc[1] * r2_ * r2_ + kc[4] * r2_**3
+        xd = d * x + kc[2] * 2 * x * y + kc[2] * (r2_ + 2 * x * x)
+        yd = d * y + kc[2] * (r2_ + 2 * y * y) + kc[2] * 2 * x * y
+        u = cams.fc[v, 0] * (xd + cams.alpha[v] * yd) + cams.cc[v, 0]
+        w = cams.fc[v, 1] * yd + cams.cc[v, 1]
+        out.append(np.stack([u, w], -1).astype(F))
+    return np.stack(out, 1)
 
 
-def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--particles", type=int, default=8192)
-    ap.add_argument("--repeats", type=int, default=7)
-    ap.add_argument("--numpy-repeats", type=int, default=3)
-    ap.add_argument(
-        "--configs",
-        nargs="*",
-        default=None,
-        help=f"default: all of {[*CONFIGS, *SAMPLE_SWEEP]} (quick: the first two)",
-    )
-    ap.add_argument("--quick", action="store_true", help="1024 particles, 3 repeats, 1 NumPy repeat")
-    ap.add_argument(
-        "--sweep",
-        action="store_true",
-        help="also time upper14-iros and full25-lk at 10^2 ... 10^5 particles against NumPy (1 NumPy repeat)",
-    )
-    ap.add_argument(
-        "--per-cue",
-        action="store_true",
-        help="also time each cue of upper14-iros alone (where its time goes)",
-    )
-    a = ap.parse_args(argv)
-    if a.quick:
-        a.particles, a.repeats, a.numpy_repeats = 1024, 3, 1
-    if a.configs is None:
-        a.configs = list(CONFIGS) if a.quick else [*CONFIGS, *SAMPLE_SWEEP]
-    rng = np.random.default_rng(0)
-    print(f"jax {jax.__version__}, {jax.devices()[0].platform}, load average {os.getloadavg()[0]:.2f}")
-    print(
-        "| config | P | particles | JAX median (min) s | JAX particles/s | NumPy s | NumPy particles/s | "
-        "speed-up | target | rel. diff median / p90 |"
-    )
-    print("|---|---|---|---|---|---|---|---|---|---|")
-    for cfg in a.configs:
-        r = run(cfg, a.particles, a.repeats, a.numpy_repeats, rng)
-        print(
-            f"| {cfg} | {r['P']} | {r['particles']} | {r['jax_s']:.4f} ({r['jax_min_s']:.4f}) | "
-            f"{r['jax_pps']:,.0f} | {r['numpy_s']:.3f} | {r['numpy_pps']:,.0f} | "
-            f"{r['numpy_s'] / r['jax_s']:.1f}× | {r['target']:,} | {r['agree'][0]:.1e} / {r['agree'][1]:.1e} |",
-            flush=True,
-        )
-    if a.sweep:
-        print("\nThroughput against the particle count (JAX: median of the repeats; NumPy: one run):")
-        print(
-            "| config | particles | JAX particles/s | NumPy particles/s | speed-up |\n|---|---|---|---|---|"
-        )
-        for cfg in CONFIGS:
-            for n in (100, 1_000, 10_000, 100_000):
-                r = run(cfg, n, a.repeats, 1, rng)
-                print(
-                    f"| {cfg} | {n:,} | {r['jax_pps']:,.0f} | {r['numpy_pps']:,.0f} | "
-                    f"{r['numpy_s'] / r['jax_s']:.1f}× |",
-                    flush=True,
-                )
-    if a.per_cue:
-        print(f"\nupper14-iros, each cue alone ({a.particles} particles, with the geometry that cue needs):")
-        print("| cue | median ms | particles/s |\n|---|---|---|")
-        for name, sec in per_cue("upper14-iros", a.particles, a.repeats, rng):
-            print(f"| {name} | {sec * 1e3:.1f} | {a.particles / sec:,.0f} |", flush=True)
-    print(f"load average after: {os.getloadavg()[0]:.2f}")
+def _steps(d, n_max):
+    """Float32 running sums 0, d, 2d, … (sequential, as the C++ loop) → ``(N, n_max + 1)``."""
+    inc = np.broadcast_to(d[:, None], (len(d), n_max)).astype(F)
+    return np.concatenate([np.zeros((len(d), 1), F), np.cumsum(inc, axis=1, dtype=F)], 1)
 
 
-if __name__ == "__main__":
-    main()
+def _take(flat, offset, x, y, mask, W, H):
+    xs, ys = (x + F(0.5)).astype(F), (y + F(0.5)).astype(F)
+    m = mask & (xs > -1) & (xs < W) & (ys > -1) & (ys < H)
+    idx = (
+        offset
+        + np.floor(np.maximum(ys, 0)).astype(np.int64) * W
+        + np.floor(np.maximum(xs, 0)).astype(np.int64)
+    )
+    return np.take(flat, np.where(m, idx, 0)), m
+
+
+def np_loglik(shape, cams, edge, fg, X):
+    """bodytrack's log-likelihood of particles ``X (N, 31)`` with NumPy."""
+    limbs, L = shape.limbs.astype(F), shape.lengths.astype(F)
+    length = np.asarray(parsec.cylinder_lengths(shape), F)
+    P = np_cylinder_poses(limbs, L, X.astype(F))
+    uv = np_corners(limbs, length, cams, P)
+    V, H, W = edge.shape
+    fe, ff = edge.reshape(-1), fg.reshape(-1)
+    N = len(X)
+    ssd, ne, bg, ni = (np.zeros(N) for _ in range(4))
+    for v in range(V):
+        off = v * H * W
+        for p in range(10):
+            c = uv[:, v, p]
+            for a, b in ((0, 1), (2, 3)):
+                s = c[:, b] - c[:, a]
+                n = np.maximum(np.floor(np.hypot(s[:, 0], s[:, 1]) / 5 + 0.5), 4).astype(np.int64)
+                t = _steps((1 / n).astype(F), n.max())
+                mask = np.arange(n.max() + 1)[None] <= n[:, None]
+                val, m = _take(fe, off, c[:, a, :1] + t * s[:, :1], c[:, a, 1:] + t * s[:, 1:], mask, W, H)
+                e = 255 - val.astype(np.int64)
+                ssd += np.where(m, e * e, 0).sum(1)
+                ne += m.sum(1)
+            s1, s2 = c[:, 1] - c[:, 0], c[:, 2] - c[:, 3]
+            mm = c[:, 0] + s1 / F(2) - (c[:, 3] + s2 / F(2))
+            n1 = np.maximum(np.floor(np.hypot(s1[:, 0], s1[:, 1]) / 10 + 0.5), 4).astype(np.int64)
+            n2 = np.maximum(np.floor(np.hypot(mm[:, 0], mm[:, 1]) / 10 + 0.5), 4).astype(np.int64)
+            t1 = _steps((1 / n1).astype(F), n1.max())  # (N, R)
+            t2 = _steps((1 / n2).astype(F), n2.max())[:, :-1]  # (N, C)
+            e1 = c[:, None, 0] + t1[..., None] * s1[:, None]
+            e2 = c[:, None, 3] + t1[..., None] * s2[:, None]
+            md = e2 - e1
+            x = e1[:, :, None, 0] + t2[:, None, :] * md[:, :, None, 0]
+            y = e1[:, :, None, 1] + t2[:, None, :] * md[:, :, None, 1]
+            mask = (np.arange(n1.max() + 1)[None, :, None] <= n1[:, None, None]) & (
+                np.arange(n2.max())[None, None, :] < n2[:, None, None]
+            )
+            val, m = _take(ff, off, x, y, mask, W, H)
+            bg += (m & (val == 0)).sum((1, 2))
+            ni += m.sum((1, 2))
+    ll = -(ssd / 255.0**2 / ne + bg / ni)
+    valid = np.asarray(jax.vmap(lambda q: pl.geometry_valid(shape, q))(jnp.asarray(P)))
+    return np.where(valid, ll, pl.INVALID)

@@ -1,0 +1,94 @@
+"""What the benchmark scripts share: where things are, timing, and writing a results file.
+
+Every script under ``benchmarks/perf/`` and ``benchmarks/experiments/`` starts with the one line
+
+    sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmarks/: the shared modules
+
+so that ``common`` (this module), ``scenes`` and ``reference`` import the same way whether the script runs as
+``python benchmarks/perf/bench_likelihood.py`` from the repository root, is loaded by ``benchmarks/run.py`` or by a
+test. Scripts import these modules only, never each other.
+
+Timing: :func:`timed_calls` times one function ``repeats`` times (wall clock and process CPU time of each call);
+:func:`interleaved_rounds` times several functions round-robin, so that a load that changes over time on a shared
+machine hits all of them alike. Both return the raw samples; the scripts report medians (and minima) of them.
+"""
+
+from __future__ import annotations
+
+import pathlib
+import time
+from collections.abc import Callable, Hashable
+from typing import NamedTuple
+
+import numpy as np
+
+BENCH = pathlib.Path(__file__).resolve().parent
+ROOT = BENCH.parent
+RESULTS = BENCH / "results"
+
+
+def script(file: str) -> str:
+    """The path of a script (its ``__file__``) relative to the repository root, as a command names it:
+    ``benchmarks/perf/bench_likelihood.py``."""
+    return pathlib.Path(file).resolve().relative_to(ROOT).as_posix()
+
+
+class Timings(NamedTuple):
+    """Per-call samples in seconds: ``wall (R,)`` (``time.perf_counter``) and ``cpu (R,)`` (process CPU time of
+    every thread, ``time.process_time``)."""
+
+    wall: np.ndarray
+    cpu: np.ndarray
+
+
+def timed_calls(fn: Callable[[], object], repeats: int, warmup: int = 0) -> Timings:
+    """Call ``fn()`` ``warmup`` times untimed, then ``repeats`` times, each timed alone. ``fn`` must wait for its
+    result (``block_until_ready``) for the wall time to mean anything. The wall interval spans the call only (the
+    CPU clock is read outside it)."""
+    for _ in range(warmup):
+        fn()
+    wall, cpu = [], []
+    for _ in range(repeats):
+        c0, t0 = time.process_time(), time.perf_counter()
+        fn()
+        wall.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
+    return Timings(np.asarray(wall), np.asarray(cpu))
+
+
+def median_seconds(fn: Callable[[], object], repeats: int, warmup: int = 0) -> float:
+    """The median wall time of :func:`timed_calls` (seconds)."""
+    return float(np.median(timed_calls(fn, repeats, warmup).wall))
+
+
+def interleaved_rounds(
+    fns: dict[Hashable, Callable], rounds: int, args: Callable[[int], tuple] = lambda r: ()
+) -> dict[Hashable, np.ndarray]:
+    """Wall seconds of every function of ``fns`` over ``rounds`` rounds, each round calling every function once
+    (in the dict's order) with the arguments ``args(round)``. Returns name → ``(rounds,)`` samples."""
+    times: dict[Hashable, list[float]] = {k: [] for k in fns}
+    for r in range(rounds):
+        a = args(r)
+        for k, fn in fns.items():
+            t0 = time.perf_counter()
+            fn(*a)
+            times[k].append(time.perf_counter() - t0)
+    return {k: np.asarray(v) for k, v in times.items()}
+
+
+def stamp() -> str:
+    """The current time as results files give it: ``2026-11-22 05:36 UTC``."""
+    return time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+
+
+def regenerate_line(command: str) -> str:
+    """The first line of a Markdown results file: the command that regenerates it, as an HTML comment."""
+    return f"<!-- Regenerate: {command} -->\n"
+
+
+def write_result(path: pathlib.Path, text: str, command: str) -> pathlib.Path:
+    """Write the Markdown ``text`` to ``path`` (``results/…`` by default in the scripts), its first line naming
+    ``command``; creates the folder."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(regenerate_line(command) + text)
+    return path

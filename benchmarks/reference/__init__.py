@@ -1,0 +1,1 @@
+"""NumPy baselines the timed benchmarks compare against, in one module: :mod:`reference.numpy_baselines`."""

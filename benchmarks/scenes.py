@@ -1,0 +1,179 @@
+"""Inputs the benchmark scripts share: the likelihood benchmarks' stereo scene, and the synthetic CMU sequences the
+tracking benchmarks run the tracker on.
+
+Likelihood scene (``perf/bench_likelihood.py``, ``perf/profile_likelihood.py``, and the NumPy baseline of
+:mod:`reference.numpy_baselines`): two 640×480 cameras 30 cm apart (the IROS 2007 robot head), smooth random
+observation maps of the right shapes and ranges, particles drawn around the rest pose; :data:`CONFIGS` names each
+body model + cue set, :func:`build` makes its likelihood.
+
+Tracked sequences (``experiments/accuracy.py``, ``perf/compile_partitions.py``): the bundled CMU walk (and the CMU
+Charleston dance when ``../shared/data/mocap/cmu`` is there) synthesised for the stereo preset
+(:func:`make_sequences`), tracked by :class:`CachedTracker` (the tracker exactly as ``jaxmocap track`` runs it,
+keeping its compiled step and observations across seeds) with the options of a :class:`Config`
+(:func:`track_options`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import pathlib
+import time
+
+import numpy as np
+from common import ROOT
+
+from jaxmocap.features.observation import make_observation
+from jaxmocap.geometry import body, camera
+from jaxmocap.likelihood import compose as L
+from jaxmocap.synth import generate as synth
+from jaxmocap.synth.generate import look_at
+from jaxmocap.tracking import tracker
+
+W, H = 640, 480
+F = np.float32
+
+IROS_CUES = ("edge_distance", "colour_histogram", "blobs3d", "skin", "homogeneous_colour")
+#: name -> (body model, cues, target particles/s, flesh surface samples)
+CONFIGS = {
+    "upper14-iros": ("upper14", IROS_CUES, 100_000, 600),
+    "full25-lk": ("full25", ("edges", "foreground", "depth"), 50_000, 600),
+}
+#: the IROS 2007 set with fewer surface samples (the cost is linear in them): how far the default is from the target
+SAMPLE_SWEEP = {
+    "upper14-iros-P300": ("upper14", IROS_CUES, 100_000, 300),
+    "upper14-iros-P150": ("upper14", IROS_CUES, 100_000, 150),
+}
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Likelihood scene
+
+
+def stereo_rig() -> camera.Rig:
+    """Two cameras 30 cm apart, 1.3 m high, 3.5 m from the subject (the IROS 2007 robot head), 640×480."""
+    Rs, ts = zip(*[look_at(np.array([3.5, y, 1.3]), [0.0, 0.0, 1.0]) for y in (-0.15, 0.15)], strict=True)
+    K = np.array([[500.0, 0.0, 319.5], [0.0, 500.0, 239.5], [0.0, 0.0, 1.0]])
+    return camera.from_opencv(
+        np.stack([K, K]), np.zeros((2, 5)), np.stack(Rs), np.stack(ts), image_size=[(W, H)] * 2
+    )
+
+
+def observation(rig, rng):
+    """Synthetic maps of the right shapes and ranges (smooth random fields: the timing does not depend on content)."""
+
+    def field(scale=1.0):
+        small = rng.uniform(0, 1, (2, H // 16 + 1, W // 16 + 1)).astype(F)
+        return np.repeat(np.repeat(small, 16, 1), 16, 2)[:, :H, :W] * scale
+
+    fg = (field() > 0.3).astype(F)
+    return make_observation(
+        rig,
+        foreground=fg,
+        edges=field(),
+        edge_dt=field(40.0),
+        skin=field(),
+        depth=np.where(fg > 0, 2.5 + field(1.0), 0.0).astype(F),
+        rgb=np.stack([field(), field(), field()], -1),
+        blobs3d=np.array([[0.0, 0.0, 1.6], [0.3, 0.25, 1.2], [0.3, -0.25, 1.2]]),
+    )
+
+
+def particles(model, n, rng):
+    """``(n, D)`` float32 states: the rest pose + N(0, 0.05²) on every DOF, clipped to the joint limits."""
+    x = np.asarray(model.rest_pose, F).copy()
+    noise = rng.normal(0.0, 0.05, (n, model.num_dofs)).astype(F)
+    return np.clip(x + noise, np.asarray(model.lower), np.asarray(model.upper)).astype(F)
+
+
+def build(config: str, rng):
+    """``(model, rig, observation, likelihood, target particles/s)`` of the configuration ``config`` (a key of
+    :data:`CONFIGS` or :data:`SAMPLE_SWEEP`); colour references taken at the rest pose when a cue needs them."""
+    preset, names, target, points = {**CONFIGS, **SAMPLE_SWEEP}[config]
+    model = getattr(body, preset)()
+    rig = stereo_rig()
+    obs = observation(rig, rng)
+    lik = L.Likelihood.create(model, rig, [L.Cue(n) for n in names], surface_points=points)
+    if lik.needs_references:
+        lik = lik.with_references(model.rest_pose, obs)
+    return model, rig, obs, lik, target
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Tracked synthetic sequences
+
+SHARED_CMU = ROOT.parent / "shared" / "data" / "mocap" / "cmu"
+BASE_CUES = ("foreground", "edge_distance", "coverage:4")
+
+
+def clips() -> list[tuple[str, str | pathlib.Path, pathlib.Path | None]]:
+    """``(name, motion, asf)`` of the clips used: the bundled walk, plus the Charleston dance when the shared data
+    is there."""
+    out: list[tuple[str, str | pathlib.Path, pathlib.Path | None]] = [("walk 02_01", "demo", None)]
+    dance = SHARED_CMU / "charleston1.amc"
+    if dance.is_file() and (SHARED_CMU / "charleston.asf").is_file():
+        out.append(("charleston", dance, SHARED_CMU / "charleston.asf"))
+    return out
+
+
+class CachedTracker(tracker.Tracker):
+    """A :class:`~jaxmocap.tracking.tracker.Tracker` that keeps its compiled step and its per-frame observations across runs
+    (the initial state comes from the ground truth, so every seed starts from the same ``x0``)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._obs_cache: dict = {}
+        self.step_seconds: list[float] = []
+
+    def _make_filter(self, x0):
+        if self.filter is None:
+            super()._make_filter(x0)
+            inner = self._step
+
+            def timed(key, state, tobs):
+                t = time.perf_counter()
+                out = inner(key, state, tobs)
+                out[0].particles.block_until_ready()
+                self.step_seconds.append(time.perf_counter() - t)
+                return out
+
+            self._step = timed
+
+    def _observe(self, t):
+        if t not in self._obs_cache:
+            self._obs_cache[t] = super()._observe(t)
+        return self._obs_cache[t]
+
+
+@dataclasses.dataclass
+class Config:
+    label: str
+    model: str
+    filter: str
+    particles: int | tuple[int, ...]
+    layers: int
+    cues: tuple[str, ...] = BASE_CUES
+
+
+def track_options(cfg: Config) -> tracker.TrackOptions:
+    """The tracker options of ``cfg``: initialised from the ground truth, ground-truth masks as the foreground."""
+    return tracker.TrackOptions(
+        model=cfg.model,
+        filter=cfg.filter,
+        particles=cfg.particles,
+        layers=cfg.layers,
+        cues=",".join(cfg.cues),
+        init="groundtruth",
+        foreground="mask",
+        overwrite=True,
+    )
+
+
+def make_sequences(work: pathlib.Path, frames: str, size: str, log=print, max_clips: int | None = None):
+    seqs = []
+    for name, motion, asf in clips()[:max_clips]:
+        d = work / name.replace(" ", "_")
+        t0 = time.monotonic()
+        synth.synthesize(motion, d, rig="stereo", asf=asf, frames=frames, size=size, seed=0, overwrite=True)
+        log(f"synthesised {name}: {time.monotonic() - t0:.0f} s")
+        seqs.append((name, d))
+    return seqs
