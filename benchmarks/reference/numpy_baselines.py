@@ -18,11 +18,11 @@ import jax.numpy as jnp
 import numpy as np
 from scenes import H, W
 
+from jaxmocap import parsec
 from jaxmocap.geometry import camera, flesh
 from jaxmocap.likelihood import compose as L
 from jaxmocap.likelihood import cues
 from jaxmocap.parsec import likelihood as pl
-from jaxmocap import parsec
 
 F = np.float32
 
