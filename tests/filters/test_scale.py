@@ -13,6 +13,7 @@ only takes effect before ``jax`` is imported). References are the plain, single-
 
 import json
 import os
+import pathlib
 import subprocess
 import sys
 import textwrap
@@ -103,7 +104,7 @@ def _filters(ll):
 
 def test_sharded_equals_unsharded_on_two_devices():
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    root = str(pathlib.Path(__file__).resolve().parents[2])
     env["PYTHONPATH"] = root + os.pathsep + env.get("PYTHONPATH", "")
     proc = subprocess.run(
         [sys.executable, "-c", _SUBPROCESS], env=env, cwd=root, capture_output=True, text=True, timeout=300
@@ -221,7 +222,7 @@ def test_batched_runs_over_two_processes():
     with socket.socket() as s:
         s.bind(("localhost", 0))
         port = s.getsockname()[1]
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    root = str(pathlib.Path(__file__).resolve().parents[2])
     env = dict(
         os.environ, JAX_PLATFORMS="cpu", PYTHONPATH=root + os.pathsep + os.environ.get("PYTHONPATH", "")
     )
