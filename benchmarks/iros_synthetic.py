@@ -39,7 +39,8 @@ import numpy as np
 
 from jaxmocap.filters import base
 from jaxmocap.filters.annealing import Schedule
-from jaxmocap.filters.apf import APF, ignore_layer
+from jaxmocap.filters.apf import APF
+from jaxmocap.filters.base import ignore_layer
 from jaxmocap.filters.icondensation import ICondensation
 from jaxmocap.filters.sir import SIR
 

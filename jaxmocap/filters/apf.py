@@ -41,19 +41,9 @@ from jaxmocap.filters import annealing, base, icondensation
 from jaxmocap.filters.annealing import Schedule
 from jaxmocap.filters.base import Info, Layer, State
 
-__all__ = ["APF", "Info", "Layer", "State", "ignore_layer"]
+__all__ = ["APF", "Info", "Layer", "State"]
 
 FIRST_LAYERS = ("dynamics", "icondensation")
-
-
-def ignore_layer(loglik_batch: Callable) -> Callable:
-    """Adapt ``loglik_batch(X, observation)`` to the annealed filters' ``(X, observation, layer)`` signature."""
-
-    def wrapped(X, observation, layer):
-        del layer
-        return loglik_batch(X, observation)
-
-    return wrapped
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,6 +1,10 @@
 """Building blocks shared by the particle filters: weights, diffusion, joint limits, estimates, recovery, frame loop.
 
-Conventions (see each filter's docstring for its own likelihood signature):
+Conventions:
+
+* every filter calls its likelihood as ``loglik_batch(X (N, D), observation, layer) -> (N,)`` with ``layer`` a
+  :class:`Layer` (single-layer filters pass :func:`single_layer`: index 0, β = 1, their partition); a likelihood
+  that ignores ``layer`` serves every filter;
 
 * particles ``X (N, D)``, log-weights ``(N,)`` normalised so that ``logsumexp = 0``; a NaN or ``±inf`` log-likelihood
   marks a dead particle (log-weight ``-inf``) and is counted in the diagnostics;
@@ -36,6 +40,7 @@ __all__ = [
     "finish",
     "gaussian_logpdf",
     "gaussian_mixture_logpdf",
+    "ignore_layer",
     "init_state",
     "layer_stats",
     "mask_loglik",
@@ -44,6 +49,7 @@ __all__ = [
     "register_filter",
     "resample",
     "run",
+    "single_layer",
     "weighted_mean",
 ]
 
@@ -64,6 +70,21 @@ class Layer(NamedTuple):
     index: jnp.ndarray
     beta: jnp.ndarray
     partition: int | jnp.ndarray = 0
+
+
+def single_layer(dtype=jnp.float32, partition: int | jnp.ndarray = 0) -> Layer:
+    """The :class:`Layer` of a filter without annealing: index 0, β = 1, partition ``partition``."""
+    return Layer(jnp.zeros((), jnp.int32), jnp.ones((), dtype), partition)
+
+
+def ignore_layer(loglik_batch: Callable) -> Callable:
+    """Adapt a likelihood ``loglik_batch(X, observation)`` to the filters' ``(X, observation, layer)``."""
+
+    def wrapped(X, observation, layer):
+        del layer
+        return loglik_batch(X, observation)
+
+    return wrapped
 
 
 class LayerStats(NamedTuple):

@@ -24,7 +24,8 @@ Weights (``weighting``):
 the bounds). ``f`` costs one ``(N, N)`` product of whitened states
 (:func:`jaxmocap.filters.base.gaussian_mixture_logpdf`).
 
-The likelihood is batched: ``loglik_batch(X (N, D), observation) -> (N,)``. By default the observation must have the
+The likelihood is batched: ``loglik_batch(X (N, D), observation, layer) -> (N,)`` (``layer``:
+:func:`jaxmocap.filters.base.single_layer`). By default the observation must have the
 attributes ``center`` (``(D,)``) and ``valid`` (bool scalar), e.g. a NamedTuple that also carries the image data.
 """
 
@@ -183,7 +184,7 @@ class ICondensation:
             limit_mode=self.limit_mode,
             weighting=self.weighting,
         )
-        ll = base.mask_loglik(self.loglik_batch(X, observation))
+        ll = base.mask_loglik(self.loglik_batch(X, observation, base.single_layer(X.dtype)))
         log_w, ok = base.normalise(ll + log_corr)
         stats = base.layer_stats(ll, log_w, 1.0)
         X, log_w, estimate, best = base.finish(

@@ -7,7 +7,8 @@ calves 1 → 200; body models give their own groups). Per frame, for ``k = 0 …
 
 1. resample the current weighted set to ``N_k`` particles (from the previous frame's final set for ``k = 0``);
 2. diffuse only the DOFs of ``G_k`` (random walk with std ``Δ[G_k]``; the others are copied unchanged), limits;
-3. weigh with the partition's likelihood ``ll = loglik_batch(X, observation, k)`` (``k`` a Python int), normalise.
+3. weigh with the partition's likelihood ``ll = loglik_batch(X, observation, layer)``, ``layer`` =
+   ``Layer(0, 1, partition=k)`` (``k`` a Python int, traced with ``scan_partitions``), normalise.
 
 After the last partition the estimate is the weighted mean of the final set (every particle carries all DOFs).
 When the likelihood factorises, ``p(z | x) = Π_k p_k(z | x_{G_k})``, and the dynamics act independently on the groups,
@@ -145,7 +146,7 @@ class Partitioned:
             k_sel, k_move, k_rec = jax.random.split(key, 3)
             X = base.resample(self.resampling, k_sel, X, log_w, n)[0]
             X = base.diffuse(k_move, X, std_k, self.lower, self.upper, self.limit_mode)
-            ll = base.mask_loglik(self.loglik_batch(X, observation, k))
+            ll = base.mask_loglik(self.loglik_batch(X, observation, base.single_layer(dtype, k)))
             X, log_w, stats, rec = self._weigh(
                 k_rec, X, ll, jnp.ones((), dtype), annealing.STATUS_OK, mask, previous_estimate
             )

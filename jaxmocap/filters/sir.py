@@ -6,12 +6,13 @@ Per frame, from the weighted set ``{x_j, w_j}`` of the previous frame:
    ``ESS / N`` falls below ``resample_threshold``);
 2. predict: random walk ``x_i ~ N(x_{a_i}, diag(Δ²))`` (``Δ = diffusion_std``, one std per DOF), then the joint
    limits (clip or reflect, see :func:`jaxmocap.filters.base.apply_limits`);
-3. measure: ``log w_i = log w_{a_i}^{prior} + ll_i`` with ``ll = loglik_batch(X, observation)``, normalised in log space
+3. measure: ``log w_i = log w_{a_i}^{prior} + ll_i`` with ``ll = loglik_batch(X, observation, layer)``, normalised in log space
    (``w^{prior}`` is uniform after a resampling);
 4. estimate: the weighted mean ``Σ w_i x_i`` of this weighted set (circular mean for entries flagged in ``circular``)
    and the best particle ``argmax w_i``.
 
-The likelihood is batched: ``loglik_batch(X (N, D), observation) -> (N,)`` (vmap a per-particle function yourself).
+The likelihood is batched: ``loglik_batch(X (N, D), observation, layer) -> (N,)`` (vmap a per-particle function
+yourself); ``layer`` is :func:`jaxmocap.filters.base.single_layer` (index 0, β = 1).
 If no particle has a finite log-likelihood the frame is recovered (``Info.recovered``): see ``recovery``.
 """
 
@@ -68,7 +69,7 @@ class SIR:
             X = jnp.where(keep, state.particles, X)
             prior_lw = jnp.where(keep, state.log_weights, prior_lw)
         X = base.diffuse(k_move, X, self.diffusion_std, self.lower, self.upper, self.limit_mode)
-        ll = base.mask_loglik(self.loglik_batch(X, observation))
+        ll = base.mask_loglik(self.loglik_batch(X, observation, base.single_layer(X.dtype)))
         log_w, ok = base.normalise(prior_lw + ll)
         stats = base.layer_stats(ll, log_w, 1.0)
         X, log_w, estimate, best = base.finish(

@@ -486,16 +486,27 @@ def upper14(dims: Mapping[str, object] | None = None, dtype=jnp.float32) -> Body
 
 
 PRESETS = {"upper9": upper9, "upper14": upper14, "full25": full25}
+#: Builders of the presets in metres where the preset's own units are others (``name -> builder(dims, dtype)``).
+METRIC_PRESETS: dict = {}
 
 
-def build(name: str, dims: Mapping[str, object] | None = None, dtype=jnp.float32) -> BodyModel:
-    """Build a preset by name (``upper9``, ``upper14``, ``full25``, ``parsec31``)."""
-    if name == "parsec31":
-        from jaxmocap.parsec import model as parsec
+def register_preset(name: str, builder, metric_builder=None) -> None:
+    """Add preset ``name``: ``builder(dims, dtype=...) -> BodyModel``, and ``metric_builder`` (same signature) when
+    the preset's own units are not metres (:func:`build` with ``in_metres=True``)."""
+    PRESETS[name] = builder
+    if metric_builder is not None:
+        METRIC_PRESETS[name] = metric_builder
 
-        return parsec.parsec31(dims, dtype=dtype)
+
+def build(
+    name: str, dims: Mapping[str, object] | None = None, dtype=jnp.float32, in_metres: bool = False
+) -> BodyModel:
+    """Build a registered preset by name (``upper9``, ``upper14``, ``full25``; ``parsec31`` once
+    :mod:`jaxmocap.parsec` is imported); ``in_metres``: its metric variant where it has one."""
     if name not in PRESETS:
-        raise ValueError(f"unknown body model {name!r}; choose one of {sorted([*PRESETS, 'parsec31'])}")
+        raise ValueError(f"unknown body model {name!r}; choose one of {sorted(PRESETS)}")
+    if in_metres and name in METRIC_PRESETS:
+        return METRIC_PRESETS[name](dims, dtype=dtype)
     return PRESETS[name](dims, dtype=dtype)
 
 

@@ -43,7 +43,7 @@ import numpy as np
 
 from jaxmocap.features.observation import Observation
 from jaxmocap.geometry import camera, flesh
-from jaxmocap.likelihood import maps
+from jaxmocap.likelihood import coverage, maps
 
 #: Li & Kulić's penalty for a sample point outside the foreground in the depth cue (eq. 1), metres.
 DEPTH_PENALTY_M = 2.8
@@ -875,6 +875,9 @@ CUES: dict[str, CueSpec] = {
     "wristband": CueSpec(wristband, False, _fixed("joints"), (), "yes"),
     "ground": CueSpec(ground, False, _fixed("joints"), (), "yes"),
     "interpenetration": CueSpec(interpenetration, False, _fixed("primitives"), (), "yes"),
+    "coverage": CueSpec(
+        coverage.coverage, True, _fixed("primitives"), ("foreground",), "yes", coverage.prepare
+    ),
 }
 
 #: Observation fields each cue reads (a clear error names the missing one).

@@ -427,6 +427,18 @@ def parsec31(dims: BodyShape | Mapping[str, object] | None = None, dtype=jnp.flo
     )
 
 
+def parsec31_in_metres(
+    dims: BodyShape | Mapping[str, object] | None = None, dtype=jnp.float32
+) -> body.BodyModel:
+    """:func:`parsec31` of the body ``dims`` in **metres** (radii and lengths / 1000), so that it shares the
+    calibration and cues of the other models; the state's pelvis translation is then in metres too."""
+    shape = shape_from_dims(dims)
+    limbs = np.asarray(shape.limbs, np.float64).copy()
+    limbs[:, :2] /= MM_PER_M
+    shape = BodyShape(jnp.asarray(limbs), jnp.asarray(np.asarray(shape.lengths) / MM_PER_M))
+    return parsec31(shape, dtype=dtype)
+
+
 def with_limits(model: body.BodyModel, lower, upper) -> body.BodyModel:
     """The model with joint limits ``lower, upper (31,)`` (e.g. PoseParameters' min and max, which bodytrack
     itself never applies)."""
