@@ -125,8 +125,8 @@ def filters(cfg: Config) -> dict:
         detection_fraction=cfg.detection_fraction,
     )
     return {
-        "SIR": SIR(loglik, dyn, n),
-        "ICONDENSATION": ICondensation(loglik, dyn, num_particles=n, **ic),
+        "SIR": SIR(loglik_layered, dyn, n),
+        "ICONDENSATION": ICondensation(loglik_layered, dyn, num_particles=n, **ic),
         "APF": APF(loglik_layered, dyn, n // L, schedule),
         "IAPF": APF(loglik_layered, dyn, n // L, schedule, first_layer="icondensation", **ic),
     }
