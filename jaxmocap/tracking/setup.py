@@ -3,10 +3,10 @@
 :class:`TrackSetup` is what ``jaxmocap track`` (:class:`jaxmocap.tracking.tracker.Tracker`), the experiment sweep
 (:mod:`jaxmocap.tracking.sweep`) and the PARSEC run build on. It validates the options against the input, builds
 the body model (:func:`jaxmocap.tracking.options.build_model`), the cues (:func:`~jaxmocap.tracking.options.default_cues`
-unless given), the feature pipeline (:class:`jaxmocap.tracking.features.FeatureBuilder`), the likelihood (one
-:class:`jaxmocap.likelihood.compose.Likelihood` over every cue, the ``coverage`` cue included, with the λ_c(l)
-table of the filter's annealing variant) and, once the initial pose is known, the filter
-(:func:`jaxmocap.filters.factory.make_filter`).
+unless given), the feature pipeline (:class:`jaxmocap.tracking.features.FeatureBuilder`), the likelihood
+(:func:`observation_loglik`: a :class:`jaxmocap.likelihood.compose.Likelihood` over the image cues with the λ_c(l)
+table of the filter's annealing variant, and the ``coverage`` cue of :mod:`jaxmocap.likelihood.coverage` with its
+column of the same table) and, once the initial pose is known, the filter (:func:`jaxmocap.filters.factory.make_filter`).
 
 The frame loop (:mod:`jaxmocap.tracking.loop`) reads these hooks of a setup: ``observe(t)``,
 ``initial_state(t, masks, fd)``, ``set_references(x0, obs)``, ``make_filter(x0)``, ``start(filter, key, x0,
@@ -202,15 +202,15 @@ class TrackSetup:
 
     # -- filter -------------------------------------------------------------------------------------------------
 
-    def make_filter(self, x0: np.ndarray, filter_name: str | None = None, layers: int | None = None):
-        """The filter (``filter_name``, default the options') around ``x0`` (the prior of ICONDENSATION / IAPF)."""
+    def make_filter(self, x0: np.ndarray):
+        """The filter of the options around ``x0`` (the prior of ICONDENSATION / IAPF)."""
         return make_filter(
-            filter_name or self.o.filter,
+            self.o.filter,
             self.loglik,
             self.model,
             self.std,
             self.num_particles,
-            self.layers if layers is None else layers,
+            self.layers,
             prior_mean=x0,
             prior_std=3.0 * self.std,
             survival_target=self.o.survival_target,
@@ -280,7 +280,3 @@ class TrackSetup:
             "diffusion_std": self.std.tolist(),
             "jax": jax.__version__,
         }
-
-    @property
-    def filter_name(self) -> str:
-        return self.o.filter
