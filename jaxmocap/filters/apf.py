@@ -47,7 +47,7 @@ FIRST_LAYERS = ("dynamics", "icondensation")
 
 
 @dataclasses.dataclass(frozen=True)
-class APF:
+class APF(base.FilterBase):
     """Annealed particle filter; with ``first_layer="icondensation"`` the IAPF.
 
     Arrays (traced): ``diffusion_std (D,)`` (Δ), ``lower, upper``; for the IAPF also ``prior_mean``, ``prior_std``
@@ -58,12 +58,8 @@ class APF:
     ``resampling``, ``limit_mode``, ``circular``, ``recovery``, ``recovery_widen``.
     """
 
-    loglik_batch: Callable
-    diffusion_std: jnp.ndarray
     num_particles: int
     schedule: Schedule = Schedule()
-    lower: jnp.ndarray | None = None
-    upper: jnp.ndarray | None = None
     first_layer: str = "dynamics"
     prior_mean: jnp.ndarray | None = None
     prior_std: jnp.ndarray | None = None
@@ -72,11 +68,6 @@ class APF:
     detection_fraction: float = 0.4
     proposal_center: Callable | None = None
     weighting: str = "mixture"
-    resampling: str = "systematic"
-    limit_mode: str = "clip"
-    circular: tuple[bool, ...] | None = None
-    recovery: str = "reinit"
-    recovery_widen: float = 3.0
 
     def __post_init__(self):
         if self.first_layer not in FIRST_LAYERS:
@@ -98,17 +89,12 @@ class APF:
         kw.setdefault("resampling", "multinomial")
         return cls(loglik_batch, pose_std, num_particles, Schedule.parsec(num_layers), **kw)
 
-    def init(self, key: jax.Array, mean: jnp.ndarray, std: jnp.ndarray | None = None) -> State:
-        """``num_particles`` particles ``mean + std ⊙ ε`` (``std`` defaults to Δ), uniform weights."""
-        std = self.diffusion_std if std is None else std
-        return base.init_state(key, self.num_particles, mean, std, self.lower, self.upper, self.limit_mode)
+    init = base.filter_init
 
     # -- one layer ---------------------------------------------------------------------------------------------
 
     def _beta_hint(self, layer, beta_prev):
-        if self.schedule.kind == "fixed":
-            return jnp.asarray(self.schedule.betas, beta_prev.dtype)[layer]
-        return beta_prev
+        return base.beta_hint(self.schedule, layer, beta_prev)
 
     def _weigh(self, key, X, log_corr, observation, layer, beta_prev, surv_prev, previous_estimate):
         return weigh_layer(
@@ -197,8 +183,5 @@ def weigh_layer(filt, key, X, log_corr, observation, layer, beta_prev, surv_prev
         sol.beta * jnp.where(jnp.isfinite(ll), ll, 0.0) + jnp.where(jnp.isfinite(ll), log_corr, -jnp.inf)
     )
     stats = base.layer_stats(ll, log_w, sol.beta, sol.status)
-    X_rec = base.recover(
-        key, X, previous_estimate, filt.diffusion_std, filt.recovery_widen, filt.lower, filt.upper,
-        filt.limit_mode, filt.recovery,
-    )  # fmt: skip
+    X_rec = filt._recover(key, X, previous_estimate)
     return jnp.where(ok, X, X_rec), log_w, stats, ~ok

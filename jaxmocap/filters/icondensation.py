@@ -122,7 +122,7 @@ def importance_sample(
 
 
 @dataclasses.dataclass(frozen=True)
-class ICondensation:
+class ICondensation(base.FilterBase):
     """ICONDENSATION filter.
 
     Arrays (traced): ``diffusion_std (D,)`` (Δ, the dynamics), ``prior_mean (D,)`` (x_init), ``prior_std (D,)``
@@ -132,23 +132,14 @@ class ICondensation:
     ``circular``, ``recovery``, ``recovery_widen`` (as in :class:`jaxmocap.filters.sir.SIR`).
     """
 
-    loglik_batch: Callable
-    diffusion_std: jnp.ndarray
     prior_mean: jnp.ndarray
     prior_std: jnp.ndarray
     num_particles: int
     detection_std: jnp.ndarray | None = None
-    lower: jnp.ndarray | None = None
-    upper: jnp.ndarray | None = None
     dynamics_fraction: float = 0.5
     detection_fraction: float = 0.4
     proposal_center: Callable | None = None
     weighting: str = "mixture"
-    resampling: str = "systematic"
-    limit_mode: str = "clip"
-    circular: tuple[bool, ...] | None = None
-    recovery: str = "reinit"
-    recovery_widen: float = 3.0
 
     def __post_init__(self):
         counts(self.num_particles, self.dynamics_fraction, self.detection_fraction)
@@ -187,20 +178,7 @@ class ICondensation:
         ll = base.mask_loglik(self.loglik_batch(X, observation, base.single_layer(X.dtype)))
         log_w, ok = base.normalise(ll + log_corr)
         stats = base.layer_stats(ll, log_w, 1.0)
-        X, log_w, estimate, best = base.finish(
-            k_rec,
-            X,
-            log_w,
-            ok,
-            state.estimate,
-            self.diffusion_std,
-            widen=self.recovery_widen,
-            lower=self.lower,
-            upper=self.upper,
-            limit_mode=self.limit_mode,
-            recovery=self.recovery,
-            circular=self.circular,
-        )
+        X, log_w, estimate, best = self._finish(k_rec, X, log_w, ok, state.estimate)
         info = Info(estimate, best, jax.tree_util.tree_map(lambda a: a[None], stats), ~ok)
         return State(X, log_w, estimate), info
 
