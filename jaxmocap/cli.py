@@ -21,7 +21,7 @@ import sys
 
 import numpy as np
 
-from jaxmocap import __version__
+from jaxmocap import __version__, choices
 from jaxmocap.errors import MocapInputError
 
 
@@ -430,24 +430,8 @@ def _add_sweep_command(sub) -> None:
     sw.set_defaults(func=_sweep)
 
 
-# the choices of jaxmocap.tracking.options (MODELS, FILTERS, FOREGROUNDS), repeated so that building the parser does not
-# import JAX; tests/test_cli_track.py checks that they agree
-_MODELS = ("upper9", "upper14", "full25", "parsec31")
-_FILTERS = (
-    "sir",
-    "icondensation",
-    "apf",
-    "iapf",
-    "partitioned",
-    "hierarchical",
-    "fbapf",
-    "fbapf2",
-    "fbapf3",
-    "m-apf",
-    "hybrid",
-    "apf-refine",
-)
-_FOREGROUNDS = ("auto", "mask", "median", "mog2", "none")
+# the choices of a tracking run (jaxmocap.choices does not import JAX: building the parser stays fast)
+_MODELS, _FILTERS, _FOREGROUNDS = choices.MODELS, choices.FILTERS, choices.FOREGROUNDS
 
 
 def _add_tracking_commands(sub) -> None:

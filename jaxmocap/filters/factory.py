@@ -14,6 +14,7 @@ from collections.abc import Callable, Sequence
 import jax.numpy as jnp
 import numpy as np
 
+from jaxmocap.choices import ANNEALED, FILTERS, GRADIENT_FILTERS, PARTITIONED
 from jaxmocap.filters.annealing import Schedule
 from jaxmocap.filters.apf import APF
 from jaxmocap.filters.hybrid import GradientMove, HybridAPF
@@ -34,28 +35,9 @@ __all__ = [
     "particles_text",
 ]
 
-FILTERS = (
-    "sir",
-    "icondensation",
-    "apf",
-    "iapf",
-    "partitioned",
-    "hierarchical",
-    "fbapf",
-    "fbapf2",
-    "fbapf3",
-    "m-apf",
-    "hybrid",
-    "apf-refine",
-)
-ANNEALED = ("apf", "iapf", "hierarchical", "fbapf", "fbapf2", "fbapf3", "m-apf", "hybrid", "apf-refine")
-#: Filters that differentiate the likelihood (:mod:`jaxmocap.filters.hybrid`): their cues use bilinear lookups.
-GRADIENT_FILTERS = ("hybrid", "apf-refine")
 #: The gradient move of ``--filter hybrid``: S = 3 normalised steps of one diffusion std on the k = 5 best distinct
 #: particles per layer (the configuration of ``benchmarks/results/hybrid_vs_apf.md``).
 HYBRID_MOVE = dict(steps=3, learning_rate=1.0, optimizer="normalized", best_k=5)
-#: Filters that split the DOFs into groups (:func:`partition_groups`), one particle count per group.
-PARTITIONED = ("partitioned", "hierarchical")
 
 
 def partition_groups(model: body_mod.BodyModel) -> tuple[tuple[int, ...], ...]:

@@ -3,7 +3,7 @@
 :class:`TrackOptions` holds what ``jaxmocap track`` takes (``None`` = the default of the model or input);
 :func:`build_model` the body, :func:`default_particles` / :func:`default_layers` / :func:`diffusion_std` /
 :func:`default_cues` the defaults, :func:`parse_cues` the ``--cues`` syntax. The filter names (:data:`FILTERS`)
-are those of :mod:`jaxmocap.filters.factory`.
+are those of :mod:`jaxmocap.choices`.
 """
 
 from __future__ import annotations
@@ -15,8 +15,16 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from jaxmocap.choices import (
+    ANNEALED,
+    FILTERS,
+    FOREGROUNDS,
+    GRADIENT_FILTERS,
+    MODELS,
+    PARTITIONED,
+    SINGLE_LAYER,
+)
 from jaxmocap.errors import MocapInputError
-from jaxmocap.filters.factory import ANNEALED, FILTERS, GRADIENT_FILTERS, PARTITIONED
 from jaxmocap.geometry import body as body_mod
 from jaxmocap.likelihood import cues as cues_mod
 
@@ -34,11 +42,6 @@ __all__ = [
     "diffusion_std",
     "parse_cues",
 ]
-
-MODELS = ("upper9", "upper14", "full25", "parsec31")
-FOREGROUNDS = ("auto", "mask", "median", "mog2", "none")
-#: Filters without annealing layers.
-SINGLE_LAYER = ("sir", "icondensation", "partitioned")
 
 
 def build_model(
