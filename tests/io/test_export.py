@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import jaxmocap.parsec  # noqa: F401  (registers the parsec31 body)
 from jaxmocap.geometry import body
 from jaxmocap.io import bvh, export, mocap
 from jaxmocap.tracking import tracker
