@@ -126,26 +126,7 @@ class APF(base.FilterBase):
         if self.first_layer == "icondensation":
             # layer 0 of the IAPF: ICONDENSATION's importance function, with the dynamics diffusing by Δ · s_0
             std0 = self.diffusion_std * scales[0]
-            center, valid = (self.proposal_center or icondensation.default_proposal_center)(observation)
-            det_std = std0 if self.detection_std is None else self.detection_std
-            X, log_corr = icondensation.importance_sample(
-                k_first,
-                state.particles,
-                state.log_weights,
-                n,
-                icondensation.counts(n, self.dynamics_fraction, self.detection_fraction),
-                std0,
-                jnp.asarray(center, dtype),
-                jnp.asarray(valid, bool),
-                det_std,
-                self.prior_mean,
-                self.prior_std,
-                scheme=self.resampling,
-                lower=self.lower,
-                upper=self.upper,
-                limit_mode=self.limit_mode,
-                weighting=self.weighting,
-            )
+            X, log_corr = icondensation.propose(self, k_first, state, observation, std0)
             X, log_w, stats0, rec0 = self._weigh(
                 k_w0, X, log_corr, observation, jnp.int32(0), zero, one, state.estimate
             )

@@ -40,7 +40,15 @@ import jax.numpy as jnp
 from jaxmocap.filters import base
 from jaxmocap.filters.base import Info, State
 
-__all__ = ["ICondensation", "Info", "State", "counts", "default_proposal_center", "importance_sample"]
+__all__ = [
+    "ICondensation",
+    "Info",
+    "State",
+    "counts",
+    "default_proposal_center",
+    "importance_sample",
+    "propose",
+]
 
 WEIGHTINGS = ("mixture", "isard_blake")
 
@@ -121,6 +129,33 @@ def importance_sample(
     return X, log_f - log_q
 
 
+def propose(filt, key: jax.Array, state: State, observation, dynamics_std: jnp.ndarray):
+    """:func:`importance_sample` for a filter with the ICONDENSATION fields (``num_particles``, the fractions,
+    ``proposal_center``, ``detection_std`` (None: ``dynamics_std``), the prior, ``weighting``, resampling and
+    limits) from the weighted set ``state``, the dynamics diffusing by ``dynamics_std``."""
+    center, valid = (filt.proposal_center or default_proposal_center)(observation)
+    det_std = dynamics_std if filt.detection_std is None else filt.detection_std
+    n = filt.num_particles
+    return importance_sample(
+        key,
+        state.particles,
+        state.log_weights,
+        n,
+        counts(n, filt.dynamics_fraction, filt.detection_fraction),
+        dynamics_std,
+        jnp.asarray(center, state.particles.dtype),
+        jnp.asarray(valid, bool),
+        det_std,
+        filt.prior_mean,
+        filt.prior_std,
+        scheme=filt.resampling,
+        lower=filt.lower,
+        upper=filt.upper,
+        limit_mode=filt.limit_mode,
+        weighting=filt.weighting,
+    )
+
+
 @dataclasses.dataclass(frozen=True)
 class ICondensation(base.FilterBase):
     """ICONDENSATION filter.
@@ -155,26 +190,7 @@ class ICondensation(base.FilterBase):
     def step(self, key: jax.Array, state: State, observation) -> tuple[State, Info]:
         """One frame: mixture proposal, weights ``p(z|x) f/q`` (or λ p(z|x)), estimate."""
         k_prop, k_rec = jax.random.split(key)
-        center, valid = (self.proposal_center or default_proposal_center)(observation)
-        det_std = self.diffusion_std if self.detection_std is None else self.detection_std
-        X, log_corr = importance_sample(
-            k_prop,
-            state.particles,
-            state.log_weights,
-            self.num_particles,
-            counts(self.num_particles, self.dynamics_fraction, self.detection_fraction),
-            self.diffusion_std,
-            jnp.asarray(center, state.particles.dtype),
-            jnp.asarray(valid, bool),
-            det_std,
-            self.prior_mean,
-            self.prior_std,
-            scheme=self.resampling,
-            lower=self.lower,
-            upper=self.upper,
-            limit_mode=self.limit_mode,
-            weighting=self.weighting,
-        )
+        X, log_corr = propose(self, k_prop, state, observation, self.diffusion_std)
         ll = base.mask_loglik(self.loglik_batch(X, observation, base.single_layer(X.dtype)))
         log_w, ok = base.normalise(ll + log_corr)
         stats = base.layer_stats(ll, log_w, 1.0)
