@@ -21,7 +21,7 @@ import sys
 
 import numpy as np
 
-from jaxmocap import __version__
+from jaxmocap import __version__, choices
 from jaxmocap.errors import MocapInputError
 
 
@@ -110,7 +110,7 @@ def _cues_text(cues) -> str:
 
 
 def _print_summary(summary: dict, out) -> None:
-    from jaxmocap.tracking import tracker
+    from jaxmocap.filters.factory import particles_text
 
     s = summary
     fps = s.get("frames_per_s")
@@ -121,7 +121,7 @@ def _print_summary(summary: dict, out) -> None:
     print(line)
     cues = _cues_text(s["cues"])
     print(
-        f"model {s['model']}, filter {s['filter']}, {tracker.particles_text(s['particles'])} particles x {s['layers']} layer(s), cues {cues}"
+        f"model {s['model']}, filter {s['filter']}, {particles_text(s['particles'])} particles x {s['layers']} layer(s), cues {cues}"
     )
     print(f"track lost in {s['lost_frames']} frame(s), {s['reinitialisations']} re-initialisation(s)")
     if s.get("mean_error_mm") is not None:
@@ -132,9 +132,9 @@ def _print_summary(summary: dict, out) -> None:
 
 
 def _track_options(args):
-    from jaxmocap.tracking import tracker
+    from jaxmocap.tracking.options import TrackOptions
 
-    return tracker.TrackOptions(
+    return TrackOptions(
         model=args.model,
         body=args.body,
         filter=args.filter,
@@ -154,14 +154,14 @@ def _track_options(args):
 
 
 def _open_source(args):
-    from jaxmocap.tracking import tracker
+    from jaxmocap.io import sources
 
     if (args.input is None) == (args.videos is None):
         raise ValueError("give either a sequence folder (INPUT) or --videos V1 V2 ... with --calibration")
     if args.videos is not None:
         if args.calibration is None:
             raise ValueError("--videos needs --calibration FILE")
-        return tracker.VideoSource(args.videos, args.calibration, args.keypoints, args.depth)
+        return sources.VideoSource(args.videos, args.calibration, args.keypoints, args.depth)
     if args.keypoints or args.depth or args.calibration:
         raise ValueError(
             "--calibration, --keypoints and --depth go with --videos (a sequence folder has its own)"
@@ -170,7 +170,21 @@ def _open_source(args):
 
     if parsec_sequence.is_parsec_folder(args.input):  # a PARSEC bodytrack sequence (CALIB/, CAM<k>/, FG<k>/)
         return parsec_sequence.ParsecSource(args.input)
-    return tracker.SequenceSource(args.input)
+    return sources.SequenceSource(args.input)
+
+
+def _import_parsec_model(args) -> None:
+    """Register PARSEC's body model (``parsec31``) when the options name it, directly or through a body file."""
+    wants = args.model == "parsec31"
+    if not wants and args.body is not None:
+        from jaxmocap.geometry import body
+
+        try:
+            wants = body.load_body_file(args.body)[0] == "parsec31"
+        except MocapInputError:
+            wants = False  # the tracker reports the bad body file
+    if wants:
+        import jaxmocap.parsec  # noqa: F401
 
 
 def _make_run(source, args, options):
@@ -182,6 +196,7 @@ def _make_run(source, args, options):
         from jaxmocap.parsec.track import ParsecTracker
 
         return ParsecTracker(source, args.out, options, quiet=args.quiet)
+    _import_parsec_model(args)
     return tracker.Tracker(source, args.out, options, quiet=args.quiet)
 
 
@@ -264,6 +279,8 @@ def _demo(args) -> int:
     import cv2
 
     from jaxmocap.eval import metrics, viz
+    from jaxmocap.filters.factory import particles_text
+    from jaxmocap.io.sources import SequenceSource
     from jaxmocap.synth import generate as synth
     from jaxmocap.tracking import tracker
 
@@ -289,7 +306,7 @@ def _demo(args) -> int:
         overlay=True,
         overwrite=True,
     )
-    source = tracker.SequenceSource(seq_dir)
+    source = SequenceSource(seq_dir)
     if track_dir.exists():
         shutil.rmtree(track_dir)
     run = tracker.Tracker(source, track_dir, options, quiet=args.quiet)
@@ -314,7 +331,7 @@ def _demo(args) -> int:
     cues = _cues_text(summary["cues"])
     head = [
         "jaxmocap demo: CMU 02_01 (walk), synthetic stereo, " + f"{seq.num_frames} frames at {args.size}",
-        f"model {summary['model']}, filter {summary['filter']}, {tracker.particles_text(summary['particles'])} particles x "
+        f"model {summary['model']}, filter {summary['filter']}, {particles_text(summary['particles'])} particles x "
         f"{summary['layers']} layers, cues {cues}, init from ground truth",
         f"tracking {t2 - t1:.1f} s ({summary['frames_per_s']:.2f} frames/s after the first frame), total {total:.1f} s",
         "",
@@ -413,24 +430,8 @@ def _add_sweep_command(sub) -> None:
     sw.set_defaults(func=_sweep)
 
 
-# the choices of jaxmocap.tracking.tracker (MODELS, FILTERS, FOREGROUNDS), repeated so that building the parser does not
-# import JAX; tests/test_cli_track.py checks that they agree
-_MODELS = ("upper9", "upper14", "full25", "parsec31")
-_FILTERS = (
-    "sir",
-    "icondensation",
-    "apf",
-    "iapf",
-    "partitioned",
-    "hierarchical",
-    "fbapf",
-    "fbapf2",
-    "fbapf3",
-    "m-apf",
-    "hybrid",
-    "apf-refine",
-)
-_FOREGROUNDS = ("auto", "mask", "median", "mog2", "none")
+# the choices of a tracking run (jaxmocap.choices does not import JAX: building the parser stays fast)
+_MODELS, _FILTERS, _FOREGROUNDS = choices.MODELS, choices.FILTERS, choices.FOREGROUNDS
 
 
 def _add_tracking_commands(sub) -> None:

@@ -42,7 +42,8 @@ import numpy as np
 
 from jaxmocap.filters import base
 from jaxmocap.filters.annealing import Schedule
-from jaxmocap.filters.apf import APF, ignore_layer
+from jaxmocap.filters.apf import APF
+from jaxmocap.filters.base import ignore_layer
 from jaxmocap.filters.icondensation import ICondensation
 from jaxmocap.filters.sir import SIR
 
@@ -127,8 +128,8 @@ def filters(cfg: Config) -> dict:
         detection_fraction=cfg.detection_fraction,
     )
     return {
-        "SIR": SIR(loglik, dyn, n),
-        "ICONDENSATION": ICondensation(loglik, dyn, num_particles=n, **ic),
+        "SIR": SIR(loglik_layered, dyn, n),
+        "ICONDENSATION": ICondensation(loglik_layered, dyn, num_particles=n, **ic),
         "APF": APF(loglik_layered, dyn, n // L, schedule),
         "IAPF": APF(loglik_layered, dyn, n // L, schedule, first_layer="icondensation", **ic),
     }

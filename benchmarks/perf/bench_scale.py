@@ -52,7 +52,7 @@ def _child(args) -> dict:
         sequences=[args.seq], filters=["apf"], model="upper9", cues="foreground,coverage", layers=args.layers
     )
     prep = sweep._Prepared(args.seq, spec)
-    tr = prep.tracker_for("apf", args.layers)
+    tr = prep.setup_for("apf", args.layers)
     dt = tr.model.offset.dtype
     x0 = jnp.asarray(prep.x0, dt)
     out = {"devices": jax.device_count(), "frames": len(prep.frames)}

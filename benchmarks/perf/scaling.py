@@ -129,7 +129,7 @@ def run(quick: bool = False, repeats: int = 7) -> dict:
         likL = _likelihood(model, rig2, L, pts)
         flt = tracker.make_filter(
             "apf",
-            lambda X, o, layer, likL=likL: likL.batch(X, o, tracker._layer_index(layer)),
+            lambda X, o, layer, likL=likL: likL.batch(X, o, layer),
             model,
             tracker.diffusion_std(model),
             n_l,

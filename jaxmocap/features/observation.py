@@ -17,6 +17,8 @@ field           shape              content
 ``blobs3d``     ``(K, 3)``         3D positions of skin blobs (head, hands), metres, world frame
 ``blob_conf``   ``(K,)``           confidence in [0, 1] of each blob slot; 0 = empty slot
 ``keypoints2d`` ``(V, J, 3)``      2D detections ``(u, v, confidence)``; confidence 0 = missing
+``silhouette``  ``(V, M, 2)``      silhouette samples (pixels) of the coverage cue, with ``silhouette_w``
+                                   ``(V, M)`` their weights (0 = empty slot); both None when not computed
 =============== ================== ==========================================================================
 
 Fixed-shape convention (so that one ``jit`` compilation serves every frame of a configuration):
@@ -66,6 +68,8 @@ class Observation(NamedTuple):
     blobs3d: jnp.ndarray
     blob_conf: jnp.ndarray
     keypoints2d: jnp.ndarray
+    silhouette: jnp.ndarray | None = None
+    silhouette_w: jnp.ndarray | None = None
 
     @property
     def num_views(self) -> int:
@@ -93,6 +97,8 @@ class Observation(NamedTuple):
             return a.shape[1] != 1
         if name in ("blobs3d", "blob_conf"):
             return a.shape[0] > 0
+        if name in ("silhouette", "silhouette_w"):
+            return a is not None
         raise KeyError(name)
 
 

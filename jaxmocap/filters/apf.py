@@ -41,23 +41,13 @@ from jaxmocap.filters import annealing, base, icondensation
 from jaxmocap.filters.annealing import Schedule
 from jaxmocap.filters.base import Info, Layer, State
 
-__all__ = ["APF", "Info", "Layer", "State", "ignore_layer"]
+__all__ = ["APF", "Info", "Layer", "State"]
 
 FIRST_LAYERS = ("dynamics", "icondensation")
 
 
-def ignore_layer(loglik_batch: Callable) -> Callable:
-    """Adapt ``loglik_batch(X, observation)`` to the annealed filters' ``(X, observation, layer)`` signature."""
-
-    def wrapped(X, observation, layer):
-        del layer
-        return loglik_batch(X, observation)
-
-    return wrapped
-
-
 @dataclasses.dataclass(frozen=True)
-class APF:
+class APF(base.FilterBase):
     """Annealed particle filter; with ``first_layer="icondensation"`` the IAPF.
 
     Arrays (traced): ``diffusion_std (D,)`` (Δ), ``lower, upper``; for the IAPF also ``prior_mean``, ``prior_std``
@@ -68,12 +58,8 @@ class APF:
     ``resampling``, ``limit_mode``, ``circular``, ``recovery``, ``recovery_widen``.
     """
 
-    loglik_batch: Callable
-    diffusion_std: jnp.ndarray
     num_particles: int
     schedule: Schedule = Schedule()
-    lower: jnp.ndarray | None = None
-    upper: jnp.ndarray | None = None
     first_layer: str = "dynamics"
     prior_mean: jnp.ndarray | None = None
     prior_std: jnp.ndarray | None = None
@@ -82,11 +68,6 @@ class APF:
     detection_fraction: float = 0.4
     proposal_center: Callable | None = None
     weighting: str = "mixture"
-    resampling: str = "systematic"
-    limit_mode: str = "clip"
-    circular: tuple[bool, ...] | None = None
-    recovery: str = "reinit"
-    recovery_widen: float = 3.0
 
     def __post_init__(self):
         if self.first_layer not in FIRST_LAYERS:
@@ -100,17 +81,12 @@ class APF:
     def num_layers(self) -> int:
         return self.schedule.num_layers
 
-    def init(self, key: jax.Array, mean: jnp.ndarray, std: jnp.ndarray | None = None) -> State:
-        """``num_particles`` particles ``mean + std ⊙ ε`` (``std`` defaults to Δ), uniform weights."""
-        std = self.diffusion_std if std is None else std
-        return base.init_state(key, self.num_particles, mean, std, self.lower, self.upper, self.limit_mode)
+    init = base.filter_init
 
     # -- one layer ---------------------------------------------------------------------------------------------
 
     def _beta_hint(self, layer, beta_prev):
-        if self.schedule.kind == "fixed":
-            return jnp.asarray(self.schedule.betas, beta_prev.dtype)[layer]
-        return beta_prev
+        return base.beta_hint(self.schedule, layer, beta_prev)
 
     def _weigh(self, key, X, log_corr, observation, layer, beta_prev, surv_prev, previous_estimate):
         return weigh_layer(
@@ -142,26 +118,7 @@ class APF:
         if self.first_layer == "icondensation":
             # layer 0 of the IAPF: ICONDENSATION's importance function, with the dynamics diffusing by Δ · s_0
             std0 = self.diffusion_std * scales[0]
-            center, valid = (self.proposal_center or icondensation.default_proposal_center)(observation)
-            det_std = std0 if self.detection_std is None else self.detection_std
-            X, log_corr = icondensation.importance_sample(
-                k_first,
-                state.particles,
-                state.log_weights,
-                n,
-                icondensation.counts(n, self.dynamics_fraction, self.detection_fraction),
-                std0,
-                jnp.asarray(center, dtype),
-                jnp.asarray(valid, bool),
-                det_std,
-                self.prior_mean,
-                self.prior_std,
-                scheme=self.resampling,
-                lower=self.lower,
-                upper=self.upper,
-                limit_mode=self.limit_mode,
-                weighting=self.weighting,
-            )
+            X, log_corr = icondensation.propose(self, k_first, state, observation, std0)
             X, log_w, stats0, rec0 = self._weigh(
                 k_w0, X, log_corr, observation, jnp.int32(0), zero, one, state.estimate
             )
@@ -199,8 +156,5 @@ def weigh_layer(filt, key, X, log_corr, observation, layer, beta_prev, surv_prev
         sol.beta * jnp.where(jnp.isfinite(ll), ll, 0.0) + jnp.where(jnp.isfinite(ll), log_corr, -jnp.inf)
     )
     stats = base.layer_stats(ll, log_w, sol.beta, sol.status)
-    X_rec = base.recover(
-        key, X, previous_estimate, filt.diffusion_std, filt.recovery_widen, filt.lower, filt.upper,
-        filt.limit_mode, filt.recovery,
-    )  # fmt: skip
+    X_rec = filt._recover(key, X, previous_estimate)
     return jnp.where(ok, X, X_rec), log_w, stats, ~ok

@@ -1,6 +1,10 @@
 """Building blocks shared by the particle filters: weights, diffusion, joint limits, estimates, recovery, frame loop.
 
-Conventions (see each filter's docstring for its own likelihood signature):
+Conventions:
+
+* every filter calls its likelihood as ``loglik_batch(X (N, D), observation, layer) -> (N,)`` with ``layer`` a
+  :class:`Layer` (single-layer filters pass :func:`single_layer`: index 0, β = 1, their partition); a likelihood
+  that ignores ``layer`` serves every filter;
 
 * particles ``X (N, D)``, log-weights ``(N,)`` normalised so that ``logsumexp = 0``; a NaN or ``±inf`` log-likelihood
   marks a dead particle (log-weight ``-inf``) and is counted in the diagnostics;
@@ -27,15 +31,19 @@ from jaxmocap.filters import annealing, resampling
 __all__ = [
     "LIMIT_MODES",
     "RECOVERY_MODES",
+    "FilterBase",
     "Info",
     "Layer",
     "LayerStats",
     "State",
     "apply_limits",
+    "beta_hint",
+    "filter_init",
     "diffuse",
     "finish",
     "gaussian_logpdf",
     "gaussian_mixture_logpdf",
+    "ignore_layer",
     "init_state",
     "layer_stats",
     "mask_loglik",
@@ -44,6 +52,7 @@ __all__ = [
     "register_filter",
     "resample",
     "run",
+    "single_layer",
     "weighted_mean",
 ]
 
@@ -66,6 +75,21 @@ class Layer(NamedTuple):
     partition: int | jnp.ndarray = 0
 
 
+def single_layer(dtype=jnp.float32, partition: int | jnp.ndarray = 0) -> Layer:
+    """The :class:`Layer` of a filter without annealing: index 0, β = 1, partition ``partition``."""
+    return Layer(jnp.zeros((), jnp.int32), jnp.ones((), dtype), partition)
+
+
+def ignore_layer(loglik_batch: Callable) -> Callable:
+    """Adapt a likelihood ``loglik_batch(X, observation)`` to the filters' ``(X, observation, layer)``."""
+
+    def wrapped(X, observation, layer):
+        del layer
+        return loglik_batch(X, observation)
+
+    return wrapped
+
+
 class LayerStats(NamedTuple):
     """Per-layer diagnostics of one weighting (each a scalar; stacked over layers in an ``Info``)."""
 
@@ -77,6 +101,41 @@ class LayerStats(NamedTuple):
     loglik_range: jnp.ndarray
     num_nonfinite: jnp.ndarray
     beta_status: jnp.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class FilterBase:
+    """What every filter holds: its likelihood ``loglik_batch(X, observation, layer) -> (N,)`` and random-walk
+    std ``diffusion_std (D,)`` (Δ), then, keyword-only, the joint limits ``lower, upper (D,)`` (or None), the
+    ``resampling`` scheme (:mod:`jaxmocap.filters.resampling`), ``limit_mode`` (:data:`LIMIT_MODES`), ``circular``
+    (per DOF: averaged as an angle; or None), ``recovery`` (:data:`RECOVERY_MODES`) and ``recovery_widen`` (std
+    multiplier of a re-initialised cloud)."""
+
+    loglik_batch: Callable
+    diffusion_std: jnp.ndarray
+    _: dataclasses.KW_ONLY
+    lower: jnp.ndarray | None = None
+    upper: jnp.ndarray | None = None
+    resampling: str = "systematic"
+    limit_mode: str = "clip"
+    circular: tuple[bool, ...] | None = None
+    recovery: str = "reinit"
+    recovery_widen: float = 3.0
+
+    def _recover(self, key: jax.Array, X: jnp.ndarray, previous_estimate: jnp.ndarray) -> jnp.ndarray:
+        """:func:`recover` with this filter's spread, limits and mode."""
+        return recover(
+            key, X, previous_estimate, self.diffusion_std, self.recovery_widen, self.lower, self.upper,
+            self.limit_mode, self.recovery,
+        )  # fmt: skip
+
+    def _finish(self, key, X, log_w, ok, previous_estimate):
+        """:func:`finish` with this filter's configuration: ``(particles, log_weights, estimate, best)``."""
+        return finish(
+            key, X, log_w, ok, previous_estimate, self.diffusion_std, widen=self.recovery_widen,
+            lower=self.lower, upper=self.upper, limit_mode=self.limit_mode, recovery=self.recovery,
+            circular=self.circular,
+        )  # fmt: skip
 
 
 def register_filter(cls, data_fields: tuple[str, ...]):
@@ -280,6 +339,21 @@ def init_state(
     X = apply_limits(X, lower, upper, limit_mode)
     log_w = jnp.full((num_particles,), -jnp.log(num_particles), mean.dtype)
     return State(X, log_w, mean)
+
+
+def filter_init(filt, key: jax.Array, mean: jnp.ndarray, std: jnp.ndarray | None = None) -> State:
+    """``init`` of a filter with ``num_particles``, ``diffusion_std`` (Δ), limits and ``limit_mode``:
+    ``num_particles`` particles ``mean + std ⊙ ε`` (``std`` defaults to Δ), uniform weights."""
+    std = filt.diffusion_std if std is None else std
+    return init_state(key, filt.num_particles, mean, std, filt.lower, filt.upper, filt.limit_mode)
+
+
+def beta_hint(schedule, layer, beta_prev):
+    """The β a likelihood is told at ``layer`` (:class:`Layer`): the schedule's when it is fixed, else the previous
+    layer's."""
+    if schedule.kind == "fixed":
+        return jnp.asarray(schedule.betas, beta_prev.dtype)[layer]
+    return beta_prev
 
 
 def finish(

@@ -162,7 +162,7 @@ DEFAULT_REFINE = GradientMove(steps=10, learning_rate=0.3, optimizer="adam")
 
 
 @dataclasses.dataclass(frozen=True)
-class HybridAPF:
+class HybridAPF(base.FilterBase):
     """Annealed particle filter with gradient moves between resampling and diffusion, and/or a refined estimate.
 
     Arrays (traced): ``diffusion_std (D,)`` (Δ), ``lower``, ``upper``.
@@ -172,20 +172,11 @@ class HybridAPF:
     ``circular``, ``recovery``, ``recovery_widen`` (as in :class:`~jaxmocap.filters.apf.APF`).
     """
 
-    loglik_batch: Callable
-    diffusion_std: jnp.ndarray
     num_particles: int
     schedule: Schedule = Schedule()
-    lower: jnp.ndarray | None = None
-    upper: jnp.ndarray | None = None
     move: GradientMove | None = GradientMove()
     refine: GradientMove | None = None
     refine_from: str = "mean"
-    resampling: str = "systematic"
-    limit_mode: str = "clip"
-    circular: tuple[bool, ...] | None = None
-    recovery: str = "reinit"
-    recovery_widen: float = 3.0
 
     def __post_init__(self):
         if self.refine_from not in ("mean", "best"):
@@ -223,17 +214,12 @@ class HybridAPF:
         lik = n * L + (1 if self.refine is not None and self.refine.steps > 0 else 0)
         return {"likelihood": lik, "gradient": grads}
 
-    def init(self, key: jax.Array, mean: jnp.ndarray, std: jnp.ndarray | None = None) -> State:
-        """``num_particles`` particles ``mean + std ⊙ ε`` (``std`` defaults to Δ), uniform weights."""
-        std = self.diffusion_std if std is None else std
-        return base.init_state(key, self.num_particles, mean, std, self.lower, self.upper, self.limit_mode)
+    init = base.filter_init
 
     # -- pieces ------------------------------------------------------------------------------------------------
 
     def _beta_hint(self, layer, beta_prev):
-        if self.schedule.kind == "fixed":
-            return jnp.asarray(self.schedule.betas, beta_prev.dtype)[layer]
-        return beta_prev
+        return base.beta_hint(self.schedule, layer, beta_prev)
 
     def _move_flags(self) -> tuple[bool, ...]:
         return tuple(self.move is not None and self.move.active(l) for l in range(self.num_layers))

@@ -24,7 +24,8 @@ Weights (``weighting``):
 the bounds). ``f`` costs one ``(N, N)`` product of whitened states
 (:func:`jaxmocap.filters.base.gaussian_mixture_logpdf`).
 
-The likelihood is batched: ``loglik_batch(X (N, D), observation) -> (N,)``. By default the observation must have the
+The likelihood is batched: ``loglik_batch(X (N, D), observation, layer) -> (N,)`` (``layer``:
+:func:`jaxmocap.filters.base.single_layer`). By default the observation must have the
 attributes ``center`` (``(D,)``) and ``valid`` (bool scalar), e.g. a NamedTuple that also carries the image data.
 """
 
@@ -39,7 +40,15 @@ import jax.numpy as jnp
 from jaxmocap.filters import base
 from jaxmocap.filters.base import Info, State
 
-__all__ = ["ICondensation", "Info", "State", "counts", "default_proposal_center", "importance_sample"]
+__all__ = [
+    "ICondensation",
+    "Info",
+    "State",
+    "counts",
+    "default_proposal_center",
+    "importance_sample",
+    "propose",
+]
 
 WEIGHTINGS = ("mixture", "isard_blake")
 
@@ -120,8 +129,35 @@ def importance_sample(
     return X, log_f - log_q
 
 
+def propose(filt, key: jax.Array, state: State, observation, dynamics_std: jnp.ndarray):
+    """:func:`importance_sample` for a filter with the ICONDENSATION fields (``num_particles``, the fractions,
+    ``proposal_center``, ``detection_std`` (None: ``dynamics_std``), the prior, ``weighting``, resampling and
+    limits) from the weighted set ``state``, the dynamics diffusing by ``dynamics_std``."""
+    center, valid = (filt.proposal_center or default_proposal_center)(observation)
+    det_std = dynamics_std if filt.detection_std is None else filt.detection_std
+    n = filt.num_particles
+    return importance_sample(
+        key,
+        state.particles,
+        state.log_weights,
+        n,
+        counts(n, filt.dynamics_fraction, filt.detection_fraction),
+        dynamics_std,
+        jnp.asarray(center, state.particles.dtype),
+        jnp.asarray(valid, bool),
+        det_std,
+        filt.prior_mean,
+        filt.prior_std,
+        scheme=filt.resampling,
+        lower=filt.lower,
+        upper=filt.upper,
+        limit_mode=filt.limit_mode,
+        weighting=filt.weighting,
+    )
+
+
 @dataclasses.dataclass(frozen=True)
-class ICondensation:
+class ICondensation(base.FilterBase):
     """ICONDENSATION filter.
 
     Arrays (traced): ``diffusion_std (D,)`` (Δ, the dynamics), ``prior_mean (D,)`` (x_init), ``prior_std (D,)``
@@ -131,23 +167,14 @@ class ICondensation:
     ``circular``, ``recovery``, ``recovery_widen`` (as in :class:`jaxmocap.filters.sir.SIR`).
     """
 
-    loglik_batch: Callable
-    diffusion_std: jnp.ndarray
     prior_mean: jnp.ndarray
     prior_std: jnp.ndarray
     num_particles: int
     detection_std: jnp.ndarray | None = None
-    lower: jnp.ndarray | None = None
-    upper: jnp.ndarray | None = None
     dynamics_fraction: float = 0.5
     detection_fraction: float = 0.4
     proposal_center: Callable | None = None
     weighting: str = "mixture"
-    resampling: str = "systematic"
-    limit_mode: str = "clip"
-    circular: tuple[bool, ...] | None = None
-    recovery: str = "reinit"
-    recovery_widen: float = 3.0
 
     def __post_init__(self):
         counts(self.num_particles, self.dynamics_fraction, self.detection_fraction)
@@ -163,43 +190,11 @@ class ICondensation:
     def step(self, key: jax.Array, state: State, observation) -> tuple[State, Info]:
         """One frame: mixture proposal, weights ``p(z|x) f/q`` (or λ p(z|x)), estimate."""
         k_prop, k_rec = jax.random.split(key)
-        center, valid = (self.proposal_center or default_proposal_center)(observation)
-        det_std = self.diffusion_std if self.detection_std is None else self.detection_std
-        X, log_corr = importance_sample(
-            k_prop,
-            state.particles,
-            state.log_weights,
-            self.num_particles,
-            counts(self.num_particles, self.dynamics_fraction, self.detection_fraction),
-            self.diffusion_std,
-            jnp.asarray(center, state.particles.dtype),
-            jnp.asarray(valid, bool),
-            det_std,
-            self.prior_mean,
-            self.prior_std,
-            scheme=self.resampling,
-            lower=self.lower,
-            upper=self.upper,
-            limit_mode=self.limit_mode,
-            weighting=self.weighting,
-        )
-        ll = base.mask_loglik(self.loglik_batch(X, observation))
+        X, log_corr = propose(self, k_prop, state, observation, self.diffusion_std)
+        ll = base.mask_loglik(self.loglik_batch(X, observation, base.single_layer(X.dtype)))
         log_w, ok = base.normalise(ll + log_corr)
         stats = base.layer_stats(ll, log_w, 1.0)
-        X, log_w, estimate, best = base.finish(
-            k_rec,
-            X,
-            log_w,
-            ok,
-            state.estimate,
-            self.diffusion_std,
-            widen=self.recovery_widen,
-            lower=self.lower,
-            upper=self.upper,
-            limit_mode=self.limit_mode,
-            recovery=self.recovery,
-            circular=self.circular,
-        )
+        X, log_w, estimate, best = self._finish(k_rec, X, log_w, ok, state.estimate)
         info = Info(estimate, best, jax.tree_util.tree_map(lambda a: a[None], stats), ~ok)
         return State(X, log_w, estimate), info
 

@@ -7,7 +7,8 @@ calves 1 → 200; body models give their own groups). Per frame, for ``k = 0 …
 
 1. resample the current weighted set to ``N_k`` particles (from the previous frame's final set for ``k = 0``);
 2. diffuse only the DOFs of ``G_k`` (random walk with std ``Δ[G_k]``; the others are copied unchanged), limits;
-3. weigh with the partition's likelihood ``ll = loglik_batch(X, observation, k)`` (``k`` a Python int), normalise.
+3. weigh with the partition's likelihood ``ll = loglik_batch(X, observation, layer)``, ``layer`` =
+   ``Layer(0, 1, partition=k)`` (``k`` a Python int, traced with ``scan_partitions``), normalise.
 
 After the last partition the estimate is the weighted mean of the final set (every particle carries all DOFs).
 When the likelihood factorises, ``p(z | x) = Π_k p_k(z | x_{G_k})``, and the dynamics act independently on the groups,
@@ -50,7 +51,7 @@ __all__ = ["Info", "Partitioned", "State", "hierarchical"]
 
 
 @dataclasses.dataclass(frozen=True)
-class Partitioned:
+class Partitioned(base.FilterBase):
     """Partitioned (or, with ``schedule``, hierarchical) sampling.
 
     Arrays (traced): ``diffusion_std (D,)``, ``lower, upper``.
@@ -60,18 +61,9 @@ class Partitioned:
     receives the partition index traced — see the module docstring).
     """
 
-    loglik_batch: Callable
-    diffusion_std: jnp.ndarray
     groups: tuple[tuple[int, ...], ...]
     counts: tuple[int, ...]
-    lower: jnp.ndarray | None = None
-    upper: jnp.ndarray | None = None
     schedule: Schedule | None = None
-    resampling: str = "systematic"
-    limit_mode: str = "clip"
-    circular: tuple[bool, ...] | None = None
-    recovery: str = "reinit"
-    recovery_widen: float = 3.0
     scan_partitions: bool = False
 
     def __post_init__(self):
@@ -122,17 +114,7 @@ class Partitioned:
     def _weigh(self, key, X, ll, beta, status, mask, previous_estimate):
         log_w, ok = base.normalise(beta * jnp.where(jnp.isfinite(ll), ll, -jnp.inf))
         stats = base.layer_stats(ll, log_w, beta, status)
-        X_rec = base.recover(
-            key,
-            X,
-            previous_estimate,
-            self.diffusion_std,
-            self.recovery_widen,
-            self.lower,
-            self.upper,
-            self.limit_mode,
-            self.recovery,
-        )
+        X_rec = self._recover(key, X, previous_estimate)
         X_rec = jnp.where(mask, X_rec, X)
         return jnp.where(ok, X, X_rec), log_w, stats, ~ok
 
@@ -145,7 +127,7 @@ class Partitioned:
             k_sel, k_move, k_rec = jax.random.split(key, 3)
             X = base.resample(self.resampling, k_sel, X, log_w, n)[0]
             X = base.diffuse(k_move, X, std_k, self.lower, self.upper, self.limit_mode)
-            ll = base.mask_loglik(self.loglik_batch(X, observation, k))
+            ll = base.mask_loglik(self.loglik_batch(X, observation, base.single_layer(dtype, k)))
             X, log_w, stats, rec = self._weigh(
                 k_rec, X, ll, jnp.ones((), dtype), annealing.STATUS_OK, mask, previous_estimate
             )
@@ -160,7 +142,7 @@ class Partitioned:
             k_sel, k_move, k_rec = jax.random.split(kk, 3)
             X = base.resample(self.resampling, k_sel, X, log_w, n)[0]
             X = base.diffuse(k_move, X, std_k * scales[layer], self.lower, self.upper, self.limit_mode)
-            hint = jnp.asarray(schedule.betas, dtype)[layer] if schedule.kind == "fixed" else beta_prev
+            hint = base.beta_hint(schedule, layer, beta_prev)
             ll = base.mask_loglik(self.loglik_batch(X, observation, Layer(layer, hint, k)))
             sol = annealing.choose_beta(schedule, ll, layer, beta_prev, surv_prev)
             X, log_w, stats, rec = self._weigh(k_rec, X, ll, sol.beta, sol.status, mask, previous_estimate)

@@ -6,19 +6,19 @@ Per frame, from the weighted set ``{x_j, w_j}`` of the previous frame:
    ``ESS / N`` falls below ``resample_threshold``);
 2. predict: random walk ``x_i ~ N(x_{a_i}, diag(Δ²))`` (``Δ = diffusion_std``, one std per DOF), then the joint
    limits (clip or reflect, see :func:`jaxmocap.filters.base.apply_limits`);
-3. measure: ``log w_i = log w_{a_i}^{prior} + ll_i`` with ``ll = loglik_batch(X, observation)``, normalised in log space
+3. measure: ``log w_i = log w_{a_i}^{prior} + ll_i`` with ``ll = loglik_batch(X, observation, layer)``, normalised in log space
    (``w^{prior}`` is uniform after a resampling);
 4. estimate: the weighted mean ``Σ w_i x_i`` of this weighted set (circular mean for entries flagged in ``circular``)
    and the best particle ``argmax w_i``.
 
-The likelihood is batched: ``loglik_batch(X (N, D), observation) -> (N,)`` (vmap a per-particle function yourself).
+The likelihood is batched: ``loglik_batch(X (N, D), observation, layer) -> (N,)`` (vmap a per-particle function
+yourself); ``layer`` is :func:`jaxmocap.filters.base.single_layer` (index 0, β = 1).
 If no particle has a finite log-likelihood the frame is recovered (``Info.recovered``): see ``recovery``.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -30,7 +30,7 @@ __all__ = ["SIR", "Info", "State"]
 
 
 @dataclasses.dataclass(frozen=True)
-class SIR:
+class SIR(base.FilterBase):
     """Bootstrap particle filter with random-walk dynamics.
 
     Arrays (traced): ``diffusion_std (D,)`` (Δ), ``lower, upper (D,)`` joint limits or None.
@@ -40,22 +40,10 @@ class SIR:
     ``recovery_widen`` (std multiplier of the re-initialised cloud).
     """
 
-    loglik_batch: Callable
-    diffusion_std: jnp.ndarray
     num_particles: int
-    lower: jnp.ndarray | None = None
-    upper: jnp.ndarray | None = None
-    resampling: str = "systematic"
-    limit_mode: str = "clip"
-    circular: tuple[bool, ...] | None = None
     resample_threshold: float | None = None
-    recovery: str = "reinit"
-    recovery_widen: float = 3.0
 
-    def init(self, key: jax.Array, mean: jnp.ndarray, std: jnp.ndarray | None = None) -> State:
-        """``num_particles`` particles ``mean + std ⊙ ε`` (``std`` defaults to Δ) with uniform weights."""
-        std = self.diffusion_std if std is None else std
-        return base.init_state(key, self.num_particles, mean, std, self.lower, self.upper, self.limit_mode)
+    init = base.filter_init
 
     def step(self, key: jax.Array, state: State, observation) -> tuple[State, Info]:
         """One frame: select, predict, measure, estimate. Returns the new state and :class:`Info`."""
@@ -68,23 +56,10 @@ class SIR:
             X = jnp.where(keep, state.particles, X)
             prior_lw = jnp.where(keep, state.log_weights, prior_lw)
         X = base.diffuse(k_move, X, self.diffusion_std, self.lower, self.upper, self.limit_mode)
-        ll = base.mask_loglik(self.loglik_batch(X, observation))
+        ll = base.mask_loglik(self.loglik_batch(X, observation, base.single_layer(X.dtype)))
         log_w, ok = base.normalise(prior_lw + ll)
         stats = base.layer_stats(ll, log_w, 1.0)
-        X, log_w, estimate, best = base.finish(
-            k_rec,
-            X,
-            log_w,
-            ok,
-            state.estimate,
-            self.diffusion_std,
-            widen=self.recovery_widen,
-            lower=self.lower,
-            upper=self.upper,
-            limit_mode=self.limit_mode,
-            recovery=self.recovery,
-            circular=self.circular,
-        )
+        X, log_w, estimate, best = self._finish(k_rec, X, log_w, ok, state.estimate)
         info = Info(estimate, best, jax.tree_util.tree_map(lambda a: a[None], stats), ~ok)
         return State(X, log_w, estimate), info
 

@@ -35,6 +35,7 @@ import numpy as np
 from jaxmocap.errors import MocapInputError
 from jaxmocap.geometry import body as body_mod
 from jaxmocap.geometry import camera
+from jaxmocap.io.sources import BadFrame, FrameData
 from jaxmocap.io.trc import load_trc
 
 __all__ = [
@@ -179,7 +180,7 @@ def body_dimensions(keypoints: np.ndarray, rig: camera.Rig) -> dict[str, float]:
 
 
 class Pose2SimSource:
-    """A Pose2Sim trial as a tracking source (the interface of :class:`jaxmocap.tracking.tracker.VideoSource`).
+    """A Pose2Sim trial as a tracking source (the interface of :class:`jaxmocap.io.sources.VideoSource`).
 
     ``calibration``: Pose2Sim TOML; ``videos``: one file per camera, or ``image_dirs``: one folder of
     ``NNNN.jpg``/``.png`` per camera whose frame numbers are ``frames``; ``keypoint_dirs``: one OpenPose JSON folder
@@ -289,8 +290,6 @@ class Pose2SimSource:
         return cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
 
     def read(self, t: int, masks: bool = True, depth: bool = True):
-        from jaxmocap.tracking.tracker import BadFrame, FrameData
-
         f = self.frame_numbers[t]
         images = []
         for v in range(len(self.cameras)):

@@ -71,6 +71,16 @@ class Cue:
         return cues.CUES[self.name]
 
 
+def finite_value_and_grad(value: jnp.ndarray, grad):
+    """``(value, grad)`` with ``value → −inf`` and ``grad → 0`` wherever the value or the gradient is not finite
+    (``grad`` a pytree whose leaves have ``value``'s shape as their leading shape)."""
+    ok = jnp.isfinite(value)
+    mask = lambda g: jnp.where(
+        jnp.reshape(ok, ok.shape + (1,) * (g.ndim - ok.ndim)) & jnp.isfinite(g), g, 0.0
+    ).astype(g.dtype)
+    return jnp.where(ok, value, -jnp.inf), jax.tree_util.tree_map(mask, grad)
+
+
 @dataclasses.dataclass(frozen=True)
 class Likelihood:
     """A composed likelihood (see the module docstring). Build it with :meth:`create`.
@@ -406,6 +416,16 @@ class Likelihood:
             ll = jax.lax.map(f, chunks).reshape(-1)[:N]
         return jnp.where(jnp.isfinite(ll), ll, -jnp.inf)
 
+    def batch_value_and_grad(
+        self, X: jnp.ndarray, obs: Observation, layer=0
+    ) -> tuple[jnp.ndarray, jnp.ndarray]:
+        """Values ``(N,)`` and gradients ``∂ℓ/∂x (N, D)`` of particles ``X (N, D)``: the per-particle
+        :meth:`log_likelihood` differentiated in one ``vmap`` (reverse mode through the chunked ``lax.map`` of
+        :meth:`batch` was measured 4–9× slower on a CPU). Non-finite values give ``−inf`` and a zero gradient."""
+        aux = self.prepare(obs)
+        f = jax.value_and_grad(lambda x: self.log_likelihood(x, obs, layer, aux))
+        return finite_value_and_grad(*jax.vmap(f)(X))
+
     # -----------------------------------------------------------------------------------------------------------
     # Reference data (first frame)
 
@@ -504,6 +524,7 @@ COARSE_CUES = frozenset(
     {
         "foreground",
         "silhouette_divergence",
+        "coverage",
         "depth",
         "blobs3d",
         "keypoints",

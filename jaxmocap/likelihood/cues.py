@@ -46,7 +46,7 @@ import numpy as np
 from jaxmocap.features.observation import Observation
 from jaxmocap.geometry import camera, flesh
 from jaxmocap.io.openpose import BODY_25B_OF_JOINT
-from jaxmocap.likelihood import maps
+from jaxmocap.likelihood import coverage, maps
 from jaxmocap.likelihood.colour_cues import (
     _prepare_colour,
     colour_histogram,
@@ -491,6 +491,9 @@ CUES: dict[str, CueSpec] = {
     "wristband": CueSpec(wristband, False, _fixed("joints"), (), "yes"),
     "ground": CueSpec(ground, False, _fixed("joints"), (), "yes"),
     "interpenetration": CueSpec(interpenetration, False, _fixed("primitives"), (), "yes"),
+    "coverage": CueSpec(
+        coverage.coverage, True, _fixed("primitives"), ("foreground",), "yes", coverage.prepare
+    ),
 }
 
 #: Observation fields each cue reads (a clear error names the missing one).

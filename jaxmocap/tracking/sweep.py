@@ -1,9 +1,9 @@
 """Experiment sweeps: sequences × filters × seeds, the seeds of each (sequence, filter) in one compiled call.
 
-For each sequence the observations of all frames are built once on the host (the tracker's
-:class:`~jaxmocap.tracking.tracker.FeatureBuilder`: foreground, edges, silhouette samples) and stacked to leaves
-``(T, ...)``; for each filter (:func:`jaxmocap.tracking.tracker.make_filter`, the tracker's likelihood and per-model
-defaults) the ``B`` seeds run as one ``jit(vmap(lax.scan))`` (:func:`jaxmocap.filters.sharding.batched_run`) with the batch
+For each sequence the observations of all frames are built once on the host (the features of the tracker's setup,
+:class:`~jaxmocap.tracking.setup.TrackSetup`: foreground, edges, silhouette samples) and stacked to leaves
+``(T, ...)``; for each filter (:meth:`TrackSetup.make_filter <jaxmocap.tracking.setup.TrackSetup.make_filter>`: the
+tracker's likelihood and per-model defaults) the ``B`` seeds run as one ``jit(vmap(lax.scan))`` (:func:`jaxmocap.filters.sharding.batched_run`) with the batch
 axis sharded over the devices, so the runs are spread over every available device (CPU, GPUs, or all devices of
 all hosts after ``jax.distributed.initialize``). Run ``b`` starts from ``filter.init(fold_in(key(seed_b), 1), x0,
 spread · Δ)`` around the tracker's initial pose ``x0`` (``init``: ground truth, IK or a file) and filters with
@@ -35,7 +35,6 @@ import csv
 import dataclasses
 import json
 import math
-import os
 import pathlib
 import time
 import tomllib
@@ -50,7 +49,9 @@ from jaxmocap.eval import metrics
 from jaxmocap.filters import sharding as scale
 from jaxmocap.geometry import body as body_mod
 from jaxmocap.io import export
-from jaxmocap.tracking import tracker
+from jaxmocap.io.sources import BadFrame, SequenceSource
+from jaxmocap.tracking.options import ANNEALED, FILTERS, TrackOptions
+from jaxmocap.tracking.setup import TrackSetup
 
 __all__ = ["COLUMNS", "SweepSpec", "load_spec", "parse_seeds", "run_sweep", "write_table"]
 
@@ -93,8 +94,8 @@ class SweepSpec:
         if not self.filters or not self.seeds:
             raise ValueError("a sweep needs at least one filter and one seed")
         for f in self.filters:
-            if f not in tracker.FILTERS:
-                raise ValueError(f"unknown filter {f!r}; choose from {', '.join(tracker.FILTERS)}")
+            if f not in FILTERS:
+                raise ValueError(f"unknown filter {f!r}; choose from {', '.join(FILTERS)}")
         if len(set(self.seeds)) != len(self.seeds):
             raise ValueError("the seeds must be distinct")
         if self.chunk < 0:
@@ -151,10 +152,10 @@ class _Prepared:
 
     def __init__(self, path: str, spec: SweepSpec):
         self.path = path
-        self.source = tracker.SequenceSource(path)
+        self.source = SequenceSource(path)
         if self.source.groundtruth is None:
             raise MocapInputError(path, "a sweep measures joint errors: the sequence needs groundtruth.npz")
-        self.options = tracker.TrackOptions(
+        self.options = TrackOptions(
             model=spec.model,
             filter="apf",
             particles=spec.particles,
@@ -165,25 +166,25 @@ class _Prepared:
             foreground=spec.foreground,
             downsample=spec.downsample,
         )
-        tr = tracker.Tracker(self.source, os.devnull, self.options, quiet=True)  # writes nothing
-        self.frames = tr.frames
-        D = tr.model.num_dofs
+        setup = TrackSetup(self.source, self.options)
+        self.frames = setup.frames
+        D = setup.model.num_dofs
         obs = []
         for t in self.frames:
             try:
                 fd = self.source.read(t)
-            except tracker.BadFrame as e:
+            except BadFrame as e:
                 raise MocapInputError(path, f"frame {t}: {e} (a sweep needs every frame)") from None
-            tobs, masks = tr.features(fd, D)
+            tobs, masks = setup.features(fd, D)
             if t == self.frames[0]:
-                self.x0, self.spread, _ = tr.initial_state(t, masks, fd)
+                self.x0, self.spread, _ = setup.initial_state(t, masks, fd)
             obs.append(tobs)
         self.observations = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *obs)
         self.groundtruth = np.asarray(self.source.groundtruth)[self.frames]
 
-    def tracker_for(self, filter_name: str, layers: int | None) -> tracker.Tracker:
-        o = dataclasses.replace(self.options, filter=filter_name, layers=layers)
-        return tracker.Tracker(self.source, os.devnull, o, quiet=True)
+    def setup_for(self, filter_name: str, layers: int | None) -> TrackSetup:
+        """The setup of ``filter_name`` (its own layers, particles and likelihood schedule)."""
+        return TrackSetup(self.source, dataclasses.replace(self.options, filter=filter_name, layers=layers))
 
 
 def _mean_errors(model: body_mod.BodyModel, estimates: np.ndarray, gt: np.ndarray) -> np.ndarray:
@@ -208,19 +209,9 @@ def run_sweep(spec: SweepSpec, progress: Callable[[str], None] | None = None) ->
     for path in spec.sequences:
         prep = _Prepared(path, spec)
         for name in spec.filters:
-            layers = spec.layers if name in tracker.ANNEALED else None
-            tr = prep.tracker_for(name, layers)
-            filt = tracker.make_filter(
-                name,
-                tr.loglik,
-                tr.model,
-                tr.std,
-                tr.num_particles,
-                tr.layers,
-                prior_mean=prep.x0,
-                prior_std=3.0 * tr.std,
-                survival_target=tr.o.survival_target,
-            )
+            layers = spec.layers if name in ANNEALED else None
+            tr = prep.setup_for(name, layers)
+            filt = tr.make_filter(prep.x0)
             if spec.chunk:
                 filt = scale.with_chunks(filt, spec.chunk)
             dt = tr.model.offset.dtype

@@ -68,7 +68,7 @@ def _kill(ll, obs, stage):
     return jnp.where(dead_here, bad, ll)
 
 
-def loglik(X, obs):
+def loglik(X, obs, layer):
     return _kill(_gauss(X, obs.z), obs, 0)
 
 
@@ -79,7 +79,8 @@ def loglik_layer(X, obs, layer):
 GROUPS = ((0, 1), (2,))
 
 
-def loglik_partition(X, obs, k):
+def loglik_partition(X, obs, layer):
+    k = layer.partition
     return _kill(_gauss(X, obs.z, GROUPS[k]), obs, k)
 
 

@@ -99,7 +99,7 @@ _SUBPROCESS = textwrap.dedent(
 def _filters(ll):
     assert ll is _ll
     std = jnp.full(D, 0.1)
-    return {"sir": SIR(_ll, std, N), "apf": APF(_LL_LAYER, std, N, Schedule.deutscher(2, 0.5))}
+    return {"sir": SIR(_LL_LAYER, std, N), "apf": APF(_LL_LAYER, std, N, Schedule.deutscher(2, 0.5))}
 
 
 def test_sharded_equals_unsharded_on_two_devices():

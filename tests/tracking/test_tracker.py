@@ -2,6 +2,7 @@
 a real CMU walk (synthesise → track → evaluate), track-loss detection and re-initialisation."""
 
 import json
+import os
 from typing import NamedTuple
 
 import jax
@@ -297,3 +298,26 @@ def test_colour_cues_track_with_first_frame_references_and_resume(sequence, tmp_
     a, b = export.load_poses(tmp_path / "full"), export.load_poses(part)
     np.testing.assert_array_equal(a["frame_index"], b["frame_index"])
     np.testing.assert_allclose(a["state"], b["state"], rtol=0, atol=1e-6)
+
+
+def test_hybrid_filter_of_the_tracker_takes_the_fast_gradient_path(sequence, monkeypatch):
+    """``jaxmocap track --filter hybrid``: the filter the tracker builds differentiates its likelihood through
+    ``Likelihood.batch_value_and_grad`` (per-particle gradients in one vmap), never the general vjp path."""
+    from jaxmocap.filters.hybrid import HybridAPF
+    from jaxmocap.likelihood import gradients
+
+    opts = tracker.TrackOptions(filter="hybrid", model="upper9", particles=8, layers=2, frames="0:2")
+    run = tracker.Tracker(tracker.SequenceSource(sequence), os.devnull, opts, quiet=True)
+    tobs = run._observe(0)[0]
+    run._make_filter(np.asarray(run.model.rest_pose))
+    f = run.filter
+    assert isinstance(f, HybridAPF) and f.move is not None
+    assert gradients.own_value_and_grad(f.loglik_batch) is not None
+
+    def slow(*args, **kwargs):
+        raise AssertionError("the general vjp path ran")
+
+    monkeypatch.setattr(gradients, "vjp_value_and_grad", slow)
+    state = f.init(jax.random.key(0), jnp.asarray(run.model.rest_pose))
+    out = jax.eval_shape(f.step, jax.random.key(1), state, tobs)  # traces every gradient move of the step
+    assert out[0].particles.shape == state.particles.shape

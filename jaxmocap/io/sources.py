@@ -1,0 +1,253 @@
+"""Frame sources of a tracking run: per frame the BGR images of every view, optional foreground masks, depth maps
+(metres) and 2D keypoints.
+
+A source has ``rig``, ``fps``, ``num_frames``, ``view_names``, ``has_masks``, ``has_depth``, ``has_keypoints``,
+``body_path``, ``groundtruth`` (``(T, 15, 3)`` joints or None), ``description`` (a dict for ``run.json``),
+``read(t, masks=True, depth=True) -> FrameData`` and ``close()``. A frame that cannot be read raises
+:class:`BadFrame`; everything else that is wrong with the input raises :class:`~jaxmocap.errors.MocapInputError`.
+
+* :class:`SequenceSource` — a sequence folder (:mod:`jaxmocap.io.sequence`);
+* :class:`VideoSource` — synchronised videos + a calibration, optional OpenPose keypoint folders and depth-map
+  folders (``.npy`` metres, 16-bit PNG millimetres or float TIFF metres).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import pathlib
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import cv2
+import numpy as np
+
+from jaxmocap.errors import MocapInputError
+from jaxmocap.geometry import camera
+
+__all__ = ["BadFrame", "FrameData", "SequenceSource", "VideoSource"]
+
+
+class BadFrame(Exception):
+    """A frame that cannot be read (a corrupt image, a video frame that does not decode)."""
+
+
+class FrameData(NamedTuple):
+    """One frame of every view: ``images`` BGR uint8 ``(H, W, 3)``; ``masks`` bool ``(H, W)`` or None; ``depth``
+    float32 metres (0 = none) or None; ``keypoints`` ``(V, K, 3)`` (u, v, confidence) or None."""
+
+    images: list
+    masks: list | None
+    depth: list | None
+    keypoints: np.ndarray | None
+
+
+def _check_depth(path, d: np.ndarray) -> np.ndarray:
+    d = np.asarray(d, np.float32)
+    if d.ndim != 2:
+        raise MocapInputError(path, f"a depth map must be 2-D, got shape {d.shape}")
+    if not np.all(np.isfinite(d)):
+        bad = int(np.sum(~np.isfinite(d)))
+        raise MocapInputError(path, f"depth map has {bad} NaN/inf values (use 0 for 'no depth')")
+    if np.any(d < 0):
+        raise MocapInputError(path, "depth map has negative values")
+    return d
+
+
+def _read_depth_file(path: pathlib.Path, size) -> np.ndarray:
+    """A depth map file: ``.npy`` float metres, or a 16-bit PNG / float TIFF (millimetres / metres)."""
+    if not path.is_file():
+        raise MocapInputError(path, "missing depth map")
+    if path.suffix.lower() == ".npy":
+        try:
+            d = np.load(path, allow_pickle=False)
+        except (OSError, ValueError) as e:
+            raise MocapInputError(path, f"cannot read depth map: {e}") from None
+    else:
+        img = cv2.imread(os.fspath(path), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise MocapInputError(path, "cannot read depth map (corrupt or unknown format)")
+        d = img.astype(np.float32) / 1000.0 if img.dtype == np.uint16 else img
+    d = _check_depth(path, d)
+    if size is not None and (d.shape[1], d.shape[0]) != tuple(size):
+        raise MocapInputError(
+            path, f"depth map is {d.shape[1]}x{d.shape[0]}, the calibration says {size[0]}x{size[1]}"
+        )
+    return d
+
+
+class SequenceSource:
+    """Frames of a sequence folder (:func:`jaxmocap.io.sequence.load_sequence`)."""
+
+    def __init__(self, root: str | os.PathLike):
+        from jaxmocap.io import sequence as seqio
+
+        self.seq = seqio.load_sequence(root)
+        self.root = pathlib.Path(root)
+        self.rig = self.seq.rig
+        self.fps = self.seq.fps
+        self.num_frames = self.seq.num_frames
+        self.view_names = self.seq.view_names
+        self.has_masks = "mask" in self.seq.channels
+        self.has_depth = "depth" in self.seq.channels
+        self.has_keypoints = False
+        self.body_path = self.seq.body_path
+        gt = self.seq.groundtruth
+        self.groundtruth = None if gt is None else gt.joints
+        self.description = {"sequence": os.fspath(self.root)}
+
+    def read(self, t: int, masks: bool = True, depth: bool = True) -> FrameData:
+        """Frame ``t``: BGR images, and the masks / depth maps the sequence has unless ``masks`` / ``depth`` is
+        False (each is a PNG to decode: a tracker that does not use them skips them)."""
+        try:
+            images = [v.bgr(t) for v in self.seq.views]
+            m = [v.mask(t) for v in self.seq.views] if (masks and self.has_masks) else None
+            d = (
+                [_check_depth(v.path("depth", t), v.depth(t)) for v in self.seq.views]
+                if (depth and self.has_depth)
+                else None
+            )
+        except MocapInputError as e:
+            if "cannot read image" in str(e) or "missing image" in str(e):
+                raise BadFrame(str(e)) from None
+            raise
+        return FrameData(images, m, d, None)
+
+    def close(self) -> None:
+        pass
+
+
+class VideoSource:
+    """Synchronised videos (frame ``t`` of every video is the same instant) with their calibration, optional
+    OpenPose JSON folders (one per camera) and depth-map folders (one per camera: ``.npy`` metres, 16-bit PNG
+    millimetres, or float TIFF metres, one file per frame in name order)."""
+
+    def __init__(
+        self,
+        videos: Sequence[str | os.PathLike],
+        calibration: str | os.PathLike,
+        keypoints: Sequence[str | os.PathLike] | None = None,
+        depth: Sequence[str | os.PathLike] | None = None,
+    ):
+        self.videos = [pathlib.Path(v) for v in videos]
+        if not self.videos:
+            raise MocapInputError(None, "no video given")
+        for v in self.videos:
+            if not v.is_file():
+                raise MocapInputError(v, "no such video file")
+            if not os.access(v, os.R_OK):
+                raise MocapInputError(v, "video file is not readable")
+        calibration = pathlib.Path(calibration)
+        if not calibration.exists():
+            raise MocapInputError(calibration, "no such calibration file")
+        rig = camera.load_calibration(calibration)
+        if rig.num_views != len(self.videos):
+            raise MocapInputError(
+                calibration,
+                f"the calibration has {rig.num_views} cameras but {len(self.videos)} videos were given",
+            )
+        self.caps, counts, sizes, fpss = [], [], [], []
+        for v in self.videos:
+            cap = cv2.VideoCapture(os.fspath(v))
+            if not cap.isOpened():
+                raise MocapInputError(v, "cannot open the video (unknown format or corrupt)")
+            self.caps.append(cap)
+            counts.append(int(round(cap.get(cv2.CAP_PROP_FRAME_COUNT))))
+            sizes.append((int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))))
+            fpss.append(float(cap.get(cv2.CAP_PROP_FPS)))
+        for v, n in zip(self.videos, counts, strict=True):
+            if n != counts[0]:
+                raise MocapInputError(
+                    v,
+                    f"has {n} frames but {self.videos[0]} has {counts[0]}: the videos must be synchronised frame by frame",
+                )
+        if counts[0] <= 0:
+            raise MocapInputError(self.videos[0], "the video has no frame")
+        fixed = []
+        for k, (v, s) in enumerate(zip(self.videos, sizes, strict=True)):
+            want = tuple(rig.image_size[k])
+            if want == (0, 0):
+                fixed.append(s)
+            elif want != s:
+                raise MocapInputError(
+                    calibration,
+                    f"camera {rig.names[k]!r} is calibrated for {want[0]}x{want[1]} images but {v.name} is {s[0]}x{s[1]}",
+                )
+            else:
+                fixed.append(want)
+        self.rig = dataclasses.replace(rig, image_size=tuple(fixed))
+        self.num_frames = counts[0]
+        self.fps = fpss[0] if fpss[0] > 0 and math.isfinite(fpss[0]) else 30.0
+        self.view_names = self.rig.names
+        self.positions = [0] * len(self.caps)
+        self.has_masks = False
+        self.body_path = None
+        self.groundtruth = None
+        self.keypoints = None
+        if keypoints:
+            from jaxmocap.io.openpose import load_openpose_folder
+
+            if len(keypoints) != len(self.videos):
+                raise MocapInputError(
+                    keypoints[0], f"{len(keypoints)} keypoint folders for {len(self.videos)} videos"
+                )
+            kps = []
+            for folder in keypoints:
+                kp = load_openpose_folder(folder)
+                if kp.shape[0] != self.num_frames:
+                    raise MocapInputError(
+                        folder, f"has {kp.shape[0]} keypoint files for {self.num_frames} video frames"
+                    )
+                kps.append(kp)
+            self.keypoints = np.stack(kps, axis=1).astype(np.float32)  # (T, V, K, 3)
+        self.has_keypoints = self.keypoints is not None
+        self.depth_files = None
+        if depth:
+            if len(depth) != len(self.videos):
+                raise MocapInputError(depth[0], f"{len(depth)} depth folders for {len(self.videos)} videos")
+            self.depth_files = []
+            for folder in depth:
+                folder = pathlib.Path(folder)
+                if not folder.is_dir():
+                    raise MocapInputError(folder, "no such depth folder")
+                files = sorted(
+                    p for p in folder.iterdir() if p.suffix.lower() in (".npy", ".png", ".tif", ".tiff")
+                )
+                if len(files) != self.num_frames:
+                    raise MocapInputError(
+                        folder, f"has {len(files)} depth maps for {self.num_frames} video frames"
+                    )
+                self.depth_files.append(files)
+        self.has_depth = self.depth_files is not None
+        self.description = {
+            "videos": [os.fspath(v) for v in self.videos],
+            "calibration": os.fspath(calibration),
+            "keypoints": [os.fspath(k) for k in keypoints or []],
+            "depth": [os.fspath(d) for d in depth or []],
+        }
+
+    def read(self, t: int, masks: bool = True, depth: bool = True) -> FrameData:
+        """Frame ``t`` of every video (BGR), with the depth maps unless ``depth`` is False (videos have no
+        masks: ``masks`` is accepted for the common interface)."""
+        images = []
+        for k, cap in enumerate(self.caps):
+            if self.positions[k] != t:
+                cap.set(cv2.CAP_PROP_POS_FRAMES, t)
+            ok, frame = cap.read()
+            self.positions[k] = t + 1
+            if not ok or frame is None:
+                self.positions[k] = -1
+                raise BadFrame(f"{self.videos[k]}: frame {t} could not be decoded")
+            images.append(frame)
+        d = None
+        if self.depth_files is not None and depth:
+            d = [
+                _read_depth_file(files[t], self.rig.image_size[k]) for k, files in enumerate(self.depth_files)
+            ]
+        kp = None if self.keypoints is None else self.keypoints[t]
+        return FrameData(images, None, d, kp)
+
+    def close(self) -> None:
+        for cap in self.caps:
+            cap.release()

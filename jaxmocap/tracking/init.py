@@ -1,0 +1,225 @@
+"""Initial and re-initialisation poses of a tracking run, from detections.
+
+* :func:`initial_state` — the first frame's pose: the IK fit of the ground truth, of triangulated 2D keypoints, the
+  rest pose facing the first camera over the triangulated silhouette centroid, or a file;
+* :func:`reinit_mean` — after a track loss (and the detection-driven proposal centre of ICONDENSATION / IAPF):
+  the IK fit of the triangulated keypoints, else the last good estimate with its root moved over the silhouette
+  centroid.
+"""
+
+from __future__ import annotations
+
+import math
+import pathlib
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxmocap.errors import MocapInputError
+from jaxmocap.fit import ik
+from jaxmocap.geometry import body as body_mod
+from jaxmocap.geometry import camera
+from jaxmocap.io import export
+
+__all__ = [
+    "KEYPOINT_OF",
+    "initial_state",
+    "keypoint_pose",
+    "move_root_over",
+    "reinit_mean",
+    "rest_facing",
+    "root_translation_dofs",
+    "silhouette_centroid",
+]
+
+#: OpenPose BODY_25B keypoint of each evaluation joint it measures (``thorax`` ≈ the upper neck).
+KEYPOINT_OF = {
+    "thorax": 17,
+    "left_shoulder": 5,
+    "right_shoulder": 6,
+    "left_elbow": 7,
+    "right_elbow": 8,
+    "left_wrist": 9,
+    "right_wrist": 10,
+    "left_hip": 11,
+    "right_hip": 12,
+    "left_knee": 13,
+    "right_knee": 14,
+    "left_ankle": 15,
+    "right_ankle": 16,
+}
+
+
+def silhouette_centroid(rig: camera.Rig, masks: np.ndarray | None, min_pixels: int = 20) -> np.ndarray | None:
+    """Triangulated centroid ``(3,)`` of the foreground of every view with at least ``min_pixels`` pixels (needs
+    two such views), else None."""
+    if masks is None:
+        return None
+    uv, wts = [], []
+    for m in masks:
+        ys, xs = np.nonzero(m)
+        ok = xs.size >= min_pixels
+        uv.append([xs.mean(), ys.mean()] if ok else [0.0, 0.0])
+        wts.append(1.0 if ok else 0.0)
+    if sum(wts) < 2:
+        return None
+    X = camera.triangulate(
+        rig.to_jax(jnp.float32), jnp.asarray(uv, jnp.float32), jnp.asarray(wts, jnp.float32)
+    )
+    X = np.asarray(X, np.float64)
+    return X if np.all(np.isfinite(X)) else None
+
+
+#: ``joint_positions(model, x) -> (J, 3)``, compiled.
+joint_positions = jax.jit(body_mod.joint_positions)
+
+
+def root_translation_dofs(model) -> list[int]:
+    return [d for d in model.topology.segment_dofs[0] if model.topology.dof_kinds[d] == "P"]
+
+
+def move_root_over(model, x: np.ndarray, point: np.ndarray) -> np.ndarray:
+    """``x`` with its root translated horizontally so that the model's mean joint lies above ``point``."""
+    x = np.asarray(x, np.float64).copy()
+    J = np.asarray(joint_positions(model, jnp.asarray(x, model.offset.dtype)), np.float64)
+    shift = np.zeros(3)
+    shift[:2] = point[:2] - J.mean(axis=0)[:2]
+    trans = root_translation_dofs(model)
+    if trans:
+        A = np.asarray(model.dof_axis, np.float64)[trans].T  # (3, k)
+        x[trans] += np.linalg.pinv(A) @ shift
+    return x
+
+
+def keypoint_pose(
+    model, rig: camera.Rig, keypoints: np.ndarray, init: np.ndarray | None = None
+) -> np.ndarray | None:
+    """IK state from 2D keypoints ``(V, K, 3)`` of every view (full-size pixels): each evaluation joint of
+    :data:`KEYPOINT_OF` triangulated from the views that detect it (confidence > 0.1, at least two), the root as
+    the middle of the hips, then :func:`jaxmocap.fit.ik.fit_pose`. None with fewer than four joints."""
+    kp = np.asarray(keypoints, np.float64)
+    rj = rig.to_jax(jnp.float32)
+    targets = {}
+    for name, k in KEYPOINT_OF.items():
+        c = np.where(kp[:, k, 2] > 0.1, kp[:, k, 2], 0.0)
+        if np.sum(c > 0) >= 2:
+            X = np.asarray(
+                camera.triangulate(rj, jnp.asarray(kp[:, k, :2], jnp.float32), jnp.asarray(c, jnp.float32))
+            )
+            if np.all(np.isfinite(X)):
+                targets[name] = X
+    if "left_hip" in targets and "right_hip" in targets:
+        targets["root"] = 0.5 * (targets["left_hip"] + targets["right_hip"])
+    names = model.joint_names
+    Y = np.full((len(names), 3), np.nan)
+    for i, n in enumerate(names):
+        if n in targets:
+            Y[i] = targets[n]
+    if np.sum(np.all(np.isfinite(Y), axis=1)) < 4:
+        return None
+    fit = ik.fit_pose(
+        model, jnp.asarray(Y, model.offset.dtype), init=None if init is None else jnp.asarray(init)
+    )
+    x = np.asarray(fit.state, np.float64)
+    return x if np.all(np.isfinite(x)) else None
+
+
+def rest_facing(model, rig: camera.Rig, point: np.ndarray) -> np.ndarray:
+    """The rest pose standing below ``point`` (horizontally) and facing the first camera."""
+    x = np.asarray(model.rest_pose, np.float64).copy()
+    centre = np.asarray(camera.camera_centres(rig.to_jax(jnp.float32)), np.float64)[0]
+    heading = [d for d in model.topology.segment_dofs[0] if model.dof_names[d].endswith("rz")]
+    if heading:
+        v = centre[:2] - point[:2]
+        x[heading[0]] = math.atan2(v[1], v[0])
+    return move_root_over(model, x, point)
+
+
+def initial_state(
+    model: body_mod.BodyModel, source, rig: camera.Rig, init: str, t0: int, masks, fd
+) -> tuple[np.ndarray, float, str]:
+    """``(x0, spread factor, how)`` for the first frame ``t0`` (``init``: ``auto``, ``groundtruth``, ``ik`` or a
+    file; ``rig``: the rig of the feature maps ``masks``; ``fd``: the frame's :class:`~jaxmocap.io.sources.FrameData`)."""
+    if init == "auto":
+        init = "groundtruth" if source.groundtruth is not None else "ik"
+    if init == "groundtruth":
+        gt = source.groundtruth
+        if gt is None:
+            raise MocapInputError(
+                getattr(source, "root", None),
+                "--init groundtruth needs a sequence with groundtruth.npz",
+            )
+        dt = model.offset.dtype
+        targets = jnp.asarray(ik.select_joints(model, gt[t0]), dt)
+        x = np.asarray(ik.fit_pose(model, targets).state, np.float64)
+        if np.all(np.isfinite(x)):
+            return x, 0.5, "groundtruth"
+        # the pose fit failed (non-finite): the rest pose placed on the ground truth by Procrustes
+        x = np.asarray(ik.root_init(model, targets), np.float64)
+        if not np.all(np.isfinite(x)):
+            x = move_root_over(model, np.asarray(model.rest_pose), np.nanmean(gt[t0], axis=0))
+        return x, 2.0, "groundtruth-root"
+    if init == "ik":
+        if fd.keypoints is not None:
+            x = keypoint_pose(model, source.rig, fd.keypoints)
+            if x is not None:
+                return x, 1.0, "ik-keypoints"
+        c = silhouette_centroid(rig, masks)
+        if c is None:
+            raise MocapInputError(
+                None,
+                f"cannot initialise at frame {t0}: no detection (no keypoints, and the person is not seen in two views)",
+            )
+        return rest_facing(model, rig, c), 2.0, "ik-silhouette"
+    return pose_from_file(model, pathlib.Path(init), t0), 0.5, "file"
+
+
+def pose_from_file(model: body_mod.BodyModel, path: pathlib.Path, t0: int) -> np.ndarray:
+    """The initial pose ``(D,)`` in a file: ``.npz`` with ``state`` (the row of frame ``t0`` when it has
+    ``frame_index``), ``.npy``, or text numbers; clipped to the joint limits."""
+    D = model.num_dofs
+    if not path.is_file():
+        raise MocapInputError(path, "no such initial pose file (--init groundtruth|ik|FILE)")
+    if path.suffix.lower() == ".npz":
+        data = export._read_npz(path)
+        if "state" not in data:
+            raise MocapInputError(path, "no 'state' array")
+        st = np.asarray(data["state"], np.float64).reshape(-1, data["state"].shape[-1])
+        row = 0
+        if "frame_index" in data and t0 in set(np.asarray(data["frame_index"]).tolist()):
+            row = int(np.nonzero(np.asarray(data["frame_index"]) == t0)[0][0])
+        x = st[row]
+    elif path.suffix.lower() == ".npy":
+        try:
+            x = np.asarray(np.load(path, allow_pickle=False), np.float64).reshape(-1)
+        except (OSError, ValueError) as e:
+            raise MocapInputError(path, f"cannot read: {e}") from None
+    else:
+        try:
+            x = np.asarray(path.read_text().split(), np.float64)
+        except (OSError, ValueError) as e:
+            raise MocapInputError(path, f"expected {D} numbers: {e}") from None
+    if x.shape != (D,):
+        raise MocapInputError(path, f"the initial pose has {x.size} values, the {model.name} model {D} DOFs")
+    if not np.all(np.isfinite(x)):
+        raise MocapInputError(path, "the initial pose has non-finite values")
+    return np.clip(x, np.asarray(model.lower), np.asarray(model.upper))
+
+
+def reinit_mean(
+    model: body_mod.BodyModel, source_rig: camera.Rig, rig: camera.Rig, fd, masks, last_good
+) -> tuple[np.ndarray | None, str | None]:
+    """A detection-driven pose and its source: the IK fit of the frame's keypoints (``source_rig``: full-size
+    pixels), else ``last_good`` moved over the silhouette centroid (``rig``: the rig of ``masks``), else
+    ``last_good`` itself; ``(None, None)`` without any."""
+    if fd is not None and fd.keypoints is not None:
+        x = keypoint_pose(model, source_rig, fd.keypoints, init=last_good)
+        if x is not None:
+            return x, "keypoints"
+    c = silhouette_centroid(rig, masks)
+    if c is not None and last_good is not None:
+        return move_root_over(model, last_good, c), "silhouette"
+    if last_good is not None:
+        return np.asarray(last_good), "last_estimate"
+    return None, None

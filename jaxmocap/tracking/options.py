@@ -1,0 +1,227 @@
+"""The options of a tracking run and their per-model defaults.
+
+:class:`TrackOptions` holds what ``jaxmocap track`` takes (``None`` = the default of the model or input);
+:func:`build_model` the body, :func:`default_particles` / :func:`default_layers` / :func:`diffusion_std` /
+:func:`default_cues` the defaults, :func:`parse_cues` the ``--cues`` syntax. The filter names (:data:`FILTERS`)
+are those of :mod:`jaxmocap.choices`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from collections.abc import Sequence
+
+import numpy as np
+
+from jaxmocap.choices import (
+    ANNEALED,
+    FILTERS,
+    FOREGROUNDS,
+    GRADIENT_FILTERS,
+    MODELS,
+    PARTITIONED,
+    SINGLE_LAYER,
+)
+from jaxmocap.errors import MocapInputError
+from jaxmocap.geometry import body as body_mod
+from jaxmocap.likelihood import cues as cues_mod
+
+__all__ = [
+    "ANNEALED",
+    "FILTERS",
+    "FOREGROUNDS",
+    "GRADIENT_FILTERS",
+    "MODELS",
+    "TrackOptions",
+    "build_model",
+    "default_cues",
+    "default_layers",
+    "default_particles",
+    "diffusion_std",
+    "parse_cues",
+]
+
+
+def build_model(
+    name: str | None, body_file: str | os.PathLike | None, fallback_body: os.PathLike | None = None
+):
+    """The body model to track with: preset ``name`` with the dimensions of ``body_file`` (or of the sequence's
+    ``fallback_body``); without a name, the model the body file names (default ``full25``).
+
+    Presets in other units than metres (``parsec31``, registered by :mod:`jaxmocap.parsec`) are built in
+    **metres** (:func:`jaxmocap.geometry.body.build` with ``in_metres``) so that they share the calibration and
+    cues of the other models.
+    """
+    path = body_file if body_file is not None else fallback_body
+    dims: dict = {}
+    file_model = None
+    if path is not None:
+        file_model, dims = body_mod.load_body_file(path)
+    name = name or file_model or "full25"
+    if name not in MODELS:
+        raise ValueError(f"unknown model {name!r}; choose one of {', '.join(MODELS)}")
+    if name not in body_mod.PRESETS:
+        raise ValueError(f"body model {name!r} is not registered: import jaxmocap.parsec (its wing) first")
+    if file_model is not None and (file_model == "parsec31") != (name == "parsec31"):
+        dims = {}  # the dimensions of PARSEC's body and of the other presets have nothing in common
+    try:
+        return body_mod.build(name, dims or None, in_metres=True)
+    except (KeyError, ValueError) as e:
+        raise MocapInputError(path, str(e)) from None
+
+
+def diffusion_std(model: body_mod.BodyModel, fps: float = 30.0) -> np.ndarray:
+    """Per-DOF random-walk standard deviation per frame ``(D,)``, chosen for walking-speed motion at 30 fps and
+    scaled by ``30 / fps``: root translation 3 cm, root heading 0.06 rad, root tilt 0.04 rad, neck 0.06 rad,
+    shoulders and hips 0.10 rad, elbows and knees 0.12 rad (other angles 0.08 rad)."""
+    out = np.empty(model.num_dofs, np.float64)
+    root = set(model.topology.segment_dofs[0])
+    for d, (name, kind) in enumerate(zip(model.dof_names, model.topology.dof_kinds, strict=True)):
+        if kind == "P":
+            out[d] = 0.03
+        elif d in root:
+            out[d] = 0.06 if name.endswith("rz") else 0.04
+        elif "neck" in name or "head" in name:
+            out[d] = 0.06
+        elif "elbow" in name or "knee" in name:
+            out[d] = 0.12
+        elif "shoulder" in name or "hip" in name:
+            out[d] = 0.10
+        else:
+            out[d] = 0.08
+    return (out * (30.0 / float(fps))).astype(np.float32)
+
+
+def default_particles(model_name: str, filter_name: str) -> int:
+    """Particles per layer (annealed filters) or in all (the others: as many likelihood evaluations per frame)."""
+    base = {"upper9": 150, "upper14": 200, "full25": 300, "parsec31": 300}[model_name]
+    if filter_name in ("sir", "icondensation"):
+        return base * default_layers(filter_name)[1]
+    if filter_name in PARTITIONED:
+        return max(base // 2, 50)
+    return base
+
+
+def default_layers(filter_name: str) -> tuple[int, int]:
+    """``(layers of this filter, layers of the APF)``: 5 for the annealed filters, 2 per level for the
+    hierarchical one, 1 for SIR / ICONDENSATION / partitioned sampling."""
+    apf = 5
+    if filter_name in SINGLE_LAYER:
+        return 1, apf
+    if filter_name == "hierarchical":
+        return 2, apf
+    return apf, apf
+
+
+def default_cues(model_name: str, has_depth: bool, has_keypoints: bool) -> tuple[tuple[str, float], ...]:
+    """``(name, weight)`` of the default cues: silhouette (``foreground``), edges (``edge_distance``), the
+    silhouette coverage term (weight 4: with a one-pixel ``d_max`` it balances the foreground cue's preference for a
+    model that shrinks into the silhouette; chosen on the demo sequence, see ``benchmarks/results/demo_table.txt``),
+    ``depth`` when the input has depth maps (full body only: Li & Kulić's cue), and the 2D ``keypoints`` when
+    there are detections."""
+    out = [("foreground", 1.0), ("edge_distance", 1.0), ("coverage", 4.0)]
+    if has_depth and model_name == "full25":
+        out.append(("depth", 1.0))
+    if has_keypoints:
+        out.append(("keypoints", 1.0))
+    return tuple(out)
+
+
+def parse_cues(spec: str | Sequence | None) -> tuple[tuple[str, float], ...] | None:
+    """``"foreground,edge_distance:2,coverage"`` → ``(("foreground", 1.0), ("edge_distance", 2.0), …)``."""
+    if spec is None:
+        return None
+    items = spec.split(",") if isinstance(spec, str) else list(spec)
+    out = []
+    for it in items:
+        if isinstance(it, tuple):
+            name, w = it
+        else:
+            name, _, w = str(it).strip().partition(":")
+            w = w or 1.0
+        try:
+            w = float(w)
+        except ValueError:
+            raise ValueError(f"cue weight of {name!r} must be a number, got {w!r}") from None
+        if name not in cues_mod.CUES:
+            known = sorted(cues_mod.CUES)
+            raise ValueError(f"unknown cue {name!r}; choose from {', '.join(known)}")
+        if not (w > 0 and math.isfinite(w)):
+            raise ValueError(f"cue weight of {name!r} must be positive, got {w}")
+        out.append((name, w))
+    if not out:
+        raise ValueError("no cue given")
+    return tuple(out)
+
+
+@dataclasses.dataclass
+class TrackOptions:
+    """Options of a tracking run (``None`` = the per-model / per-input default).
+
+    ``model``/``body``: :func:`build_model`; ``filter``, ``particles``, ``layers``: :func:`make_filter` (defaults
+    :func:`default_particles`, :func:`default_layers`); ``cues``: :func:`parse_cues` (default :func:`default_cues`);
+    ``seed``: frame ``t`` uses the key ``fold_in(key(seed), t)``; ``frames``: ``"A:B"``; ``init``: ``groundtruth``,
+    ``ik``, a file, or ``auto``; ``foreground``/``downsample``/``samples``: :class:`FeatureBuilder`;
+    ``velocity``: damping ``k`` of the constant-velocity prediction ``x_root += k (x̂_{t−1} − x̂_{t−2})`` (0 =
+    random walk only); ``diffusion_scale``: multiplies :func:`diffusion_std`; ``survival_target``: α of
+    Deutscher's rule; ``loss_*``/``reinit_widen``: track loss (module docstring); ``on_bad_frame``: ``skip`` or
+    ``stop``; ``overlay``: MP4 per view; ``resume``/``overwrite``: what to do with a previous run in the output
+    folder; ``fsync``: ``fsync`` every rewrite.
+    """
+
+    model: str | None = None
+    body: str | None = None
+    filter: str = "apf"
+    particles: int | Sequence[int] | None = None
+    layers: int | None = None
+    cues: str | Sequence | None = None
+    seed: int = 0
+    frames: str | None = None
+    init: str = "auto"
+    foreground: str = "auto"
+    downsample: int = 1
+    velocity: float = 0.5
+    diffusion_scale: float = 1.0
+    survival_target: float = 0.5
+    samples: int = 128
+    loss_ratio: float = 2.5
+    loss_frames: int = 3
+    loss_window: int = 5
+    reinit_widen: float = 3.0
+    on_bad_frame: str = "skip"
+    overlay: bool = False
+    resume: bool = False
+    overwrite: bool = False
+    fsync: bool = False
+
+    def identity(self) -> dict:
+        """The options a resumed run must share with the run it continues."""
+        keys = (
+            "model",
+            "body",
+            "filter",
+            "particles",
+            "layers",
+            "cues",
+            "seed",
+            "frames",
+            "init",
+            "foreground",
+        )
+        keys += (
+            "downsample",
+            "velocity",
+            "diffusion_scale",
+            "samples",
+            "loss_ratio",
+            "loss_frames",
+            "loss_window",
+        )
+        keys += ("reinit_widen",)
+        out = {k: getattr(self, k) for k in keys}
+        if isinstance(self.particles, (list, tuple)):
+            out["particles"] = [int(c) for c in self.particles]
+        out["cues"] = None if self.cues is None else [list(c) for c in parse_cues(self.cues)]
+        return out
