@@ -21,6 +21,7 @@ from jaxmocap.fit import ik
 from jaxmocap.geometry import body as body_mod
 from jaxmocap.geometry import camera
 from jaxmocap.io import export
+from jaxmocap.io.openpose import BODY_25B_OF_JOINT
 
 __all__ = [
     "KEYPOINT_OF",
@@ -34,21 +35,7 @@ __all__ = [
 ]
 
 #: OpenPose BODY_25B keypoint of each evaluation joint it measures (``thorax`` ≈ the upper neck).
-KEYPOINT_OF = {
-    "thorax": 17,
-    "left_shoulder": 5,
-    "right_shoulder": 6,
-    "left_elbow": 7,
-    "right_elbow": 8,
-    "left_wrist": 9,
-    "right_wrist": 10,
-    "left_hip": 11,
-    "right_hip": 12,
-    "left_knee": 13,
-    "right_knee": 14,
-    "left_ankle": 15,
-    "right_ankle": 16,
-}
+KEYPOINT_OF = BODY_25B_OF_JOINT
 
 
 def silhouette_centroid(rig: camera.Rig, masks: np.ndarray | None, min_pixels: int = 20) -> np.ndarray | None:
