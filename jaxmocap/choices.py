@@ -1,5 +1,6 @@
-"""The names a tracking run chooses from (body models, filters, foregrounds), without importing JAX: the command
-line builds its parser from them; :mod:`jaxmocap.filters.factory` and :mod:`jaxmocap.tracking.options` use them."""
+"""The names a tracking run chooses from (body models, filters, foregrounds) and the frame-range syntax, without
+importing JAX: the command line builds its parser from them; :mod:`jaxmocap.filters.factory`,
+:mod:`jaxmocap.tracking.options` and the synthesis wing use them."""
 
 MODELS = ("upper9", "upper14", "full25", "parsec31")
 FILTERS = (
@@ -25,3 +26,24 @@ GRADIENT_FILTERS = ("hybrid", "apf-refine")
 #: Filters that split the DOFs into groups, one particle count per group.
 PARTITIONED = ("partitioned", "hierarchical")
 FOREGROUNDS = ("auto", "mask", "median", "mog2", "none")
+
+
+def parse_frames(spec: str | tuple[int | None, int | None] | None, num_frames: int) -> tuple[int, int]:
+    """``"A:B"`` (either side may be empty; Python slice bounds, negative from the end) → ``(a, b)`` with
+    ``0 ≤ a < b ≤ num_frames``."""
+    if spec is None:
+        a, b = None, None
+    elif isinstance(spec, str):
+        parts = spec.split(":")
+        if len(parts) != 2:
+            raise ValueError(f"frames must be A:B, got {spec!r}")
+        try:
+            a, b = (int(p) if p.strip() else None for p in parts)
+        except ValueError:
+            raise ValueError(f"frames must be A:B with integers, got {spec!r}") from None
+    else:
+        a, b = spec
+    a, b, _ = slice(a, b).indices(num_frames)
+    if a >= b:
+        raise ValueError(f"frame range {spec!r} is empty for a clip of {num_frames} frames")
+    return a, b

@@ -27,8 +27,9 @@ from jaxmocap.errors import MocapInputError
 
 def _calib_show(args) -> int:
     from jaxmocap.geometry import camera
+    from jaxmocap.io import calibration
 
-    rig = camera.load_calibration(args.file)
+    rig = calibration.load_calibration(args.file)
     centres = np.asarray(camera.camera_centres(rig.to_jax()))
     print(f"{rig.num_views} cameras in {args.file}")
     for v, name in enumerate(rig.names):
@@ -43,10 +44,10 @@ def _calib_show(args) -> int:
 
 
 def _calib_convert(args) -> int:
-    from jaxmocap.geometry import camera
+    from jaxmocap.io import calibration
 
-    rig = camera.load_calibration(args.input)
-    camera.save_calibration(args.output, rig)
+    rig = calibration.load_calibration(args.input)
+    calibration.save_calibration(args.output, rig)
     print(f"wrote {rig.num_views} cameras to {args.output}")
     return 0
 

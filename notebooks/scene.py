@@ -1,4 +1,4 @@
-"""A small synthetic scene shared by the notebooks: a ``full25`` subject rendered by :mod:`jaxmocap.synth.render` from its
+"""A small synthetic scene shared by the notebooks: a ``full25`` subject rendered by :mod:`jaxmocap.geometry.render` from its
 own body model into two views, with the maps the image cues read (blurred silhouette, edges, their distance
 transform) and the projected evaluation joints as 2D keypoints.
 
@@ -18,8 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxmocap.features.observation import Observation, make_observation
-from jaxmocap.geometry import body, camera
-from jaxmocap.synth import render
+from jaxmocap.geometry import body, camera, render
 from jaxmocap.synth.stage import look_at
 
 SMALL = os.environ.get("JAXMOCAP_NB_SMALL", "0") not in ("", "0")

@@ -9,13 +9,14 @@ import numpy as np
 import jaxmocap.parsec  # noqa: F401  (registers the PARSEC .cal camera reader)
 from jaxmocap import cli
 from jaxmocap.geometry import camera
+from jaxmocap.io import calibration
 
 
 def test_calib_convert_round_trip(tmp_path, data_dir):
     out = tmp_path / "parsec.toml"
     assert cli.main(["calib", "convert", str(data_dir / "calib" / "parsec" / "CALIB"), str(out)]) == 0
-    a = camera.load_calibration(data_dir / "calib" / "parsec" / "CALIB")
-    b = camera.load_calibration(out)
+    a = calibration.load_calibration(data_dir / "calib" / "parsec" / "CALIB")
+    b = calibration.load_calibration(out)
     assert b.names == a.names and b.image_size == a.image_size
     X = np.random.default_rng(0).uniform([-1, -1, 0], [1, 1, 2], size=(50, 3))
     for v in range(a.num_views):

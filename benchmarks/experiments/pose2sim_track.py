@@ -34,6 +34,7 @@ import numpy as np
 
 from jaxmocap.geometry import camera
 from jaxmocap.geometry.body import EVAL_JOINTS
+from jaxmocap.io import calibration
 from jaxmocap.io.pose2sim import KEYPOINT_OF_TRC, Pose2SimSource, body_dimensions, reference_joints
 from jaxmocap.tracking.init import KEYPOINT_OF
 from jaxmocap.tracking.tracker import Tracker, TrackOptions
@@ -283,7 +284,7 @@ def main(argv=None) -> int:
     out = pathlib.Path(a.out)
     p = paths(DATA)
     ref, _, _ = reference_joints(p["trc"])
-    pair = neighbouring_pair(camera.load_calibration(p["calibration"]), np.nanmean(ref[:, 0], axis=0))
+    pair = neighbouring_pair(calibration.load_calibration(p["calibration"]), np.nanmean(ref[:, 0], axis=0))
     sets = []
     if not a.pair_only:
         sets.append((0, 1, 2, 3))

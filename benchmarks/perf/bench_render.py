@@ -1,6 +1,6 @@
 """Frames per second of the ray-casting renderer for one 640×480 view of a 16-primitive body.
 
-Scene: a standing skeleton dressed in 15 cones and an ellipsoid head (:func:`jaxmocap.synth.render.primitives_from_skeleton`)
+Scene: a standing skeleton dressed in 15 cones and an ellipsoid head (:func:`jaxmocap.geometry.render.primitives_from_skeleton`)
 seen from 3.5 m (the body covers a few percent of the image, as in a multi-view capture) and from 1.2 m (a
 close-up: the body covers most of the frame — the worst case for screen-space culling). For each configuration
 (caps, normals, tile size, culling on/off) the median time of a render after compilation, until the result is
@@ -26,7 +26,7 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from jaxmocap.synth import render  # noqa: E402
+from jaxmocap.geometry import render  # noqa: E402
 
 W, H = 640, 480
 K = np.array([[520.0, 0.0, 319.5], [0.0, 520.0, 239.5], [0.0, 0.0, 1.0]])

@@ -4,14 +4,14 @@ Scene: the bundled CMU walk (subject 2, trial 1, source frames 120–240 at 30 f
 cones and a head spheroid, seen by the ``stereo`` preset at 640×480. Reports medians over every view of every
 frame (after compilation) of:
 
-1. ray casting: :func:`jaxmocap.synth.render.render_view` (depth, labels, normals) until the result is ready;
+1. ray casting: :func:`jaxmocap.geometry.render.render_view` (depth, labels, normals) until the result is ready;
 2. the in-memory images of a view: ray casting + shading/compositing + sensor noise + virtual depth
    (:func:`jaxmocap.synth.generate.view_images`), i.e. the rendering of RGB, mask, labels and depth;
 3. the whole command: :func:`jaxmocap.synth.generate.synthesize` (rig fitting, ray casting, image formation and the PNG
    writes), as view-frames per second of wall time, compiled (second run in the process);
 
 and the same-process baselines: ray casting every tile, without screen-space culling (``cull=False``), and the
-unfused host image formation of :mod:`jaxmocap.synth.render` (``shade`` + ``composite`` + ``add_sensor_noise`` +
+unfused host image formation of :mod:`jaxmocap.geometry.render` (``shade`` + ``composite`` + ``add_sensor_noise`` +
 ``virtual_depth`` in NumPy) in place of stage 2's fused shading. Wall and process CPU time are both given, with
 the load average (the CI-like machine is shared).
 
@@ -34,9 +34,9 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
+from jaxmocap.geometry import render
 from jaxmocap.io.mocap import eval_joints  # noqa: E402
 from jaxmocap.synth import generate as synth  # noqa: E402
-from jaxmocap.synth import render
 
 
 def _median_ms(samples):

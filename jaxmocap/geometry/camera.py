@@ -430,26 +430,3 @@ def triangulate(rig: Rig, uv, weights=None) -> jnp.ndarray:
     X = h[..., :3] / h[..., 3:4]
     enough = jnp.sum(w > 0, axis=-1) >= 2
     return jnp.where(enough[..., None], X, jnp.nan)
-
-
-# ---------------------------------------------------------------------------------------------------------------
-# Calibration files (in jaxmocap.io.calibration)
-
-_CALIBRATION_FILES = (
-    "load_calibration",
-    "load_caliscope_toml",
-    "load_opencv_storage",
-    "load_pose2sim_toml",
-    "load_qualisys_qca",
-    "save_calibration",
-)
-
-
-def __getattr__(name: str):
-    """The calibration readers and the writer live in :mod:`jaxmocap.io.calibration`; ``camera.load_calibration``
-    and the others named in ``_CALIBRATION_FILES`` still reach them, imported on first use."""
-    if name in _CALIBRATION_FILES:
-        from jaxmocap.io import calibration
-
-        return getattr(calibration, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

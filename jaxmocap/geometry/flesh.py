@@ -14,7 +14,7 @@ Each segment of a :class:`jaxmocap.geometry.body.BodyModel` carries one primitiv
 
 Everything here is a pure function of traced arrays (body dimensions and poses are differentiable); point
 counts and the ring layout are static. The same primitives in world coordinates (:class:`Primitives`) are what
-:mod:`jaxmocap.synth.render` ray-casts, so the sample points, the contours and the rendered images agree.
+:mod:`jaxmocap.geometry.render` ray-casts, so the sample points, the contours and the rendered images agree.
 
 Occluding contours (López Méndez 2009, §4.1): seen from a camera centre ``c``, the silhouette of a cone is
 traced by the two generators whose tangent plane contains ``c``: ``(p − c)·n = 0``. Because ``n`` is

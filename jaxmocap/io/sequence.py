@@ -5,7 +5,7 @@ Layout of a sequence folder (``T`` frames, ``V`` cameras; every image is a PNG n
 
 .. code-block:: text
 
-    calibration.toml            canonical Pose2Sim-layout TOML (jaxmocap.geometry.camera.save_calibration), metres, z up
+    calibration.toml            canonical Pose2Sim-layout TOML (jaxmocap.geometry.calibration.save_calibration), metres, z up
     meta.json                   {"frames": T, "fps": F, ...}: the frame count is the one authority
     views/<camera name>/rgb/    8-bit colour images (required)
     views/<camera name>/mask/   8-bit foreground masks, 255 = person, 0 = background (optional)
@@ -40,6 +40,7 @@ import numpy as np
 from jaxmocap.errors import MocapInputError
 from jaxmocap.geometry import camera
 from jaxmocap.geometry.body import EVAL_JOINTS
+from jaxmocap.io import calibration
 
 CALIBRATION = "calibration.toml"
 META = "meta.json"
@@ -131,7 +132,7 @@ def write_calibration(root: str | os.PathLike, rig: camera.Rig) -> pathlib.Path:
     """``root/calibration.toml`` in the canonical Pose2Sim layout."""
     path = pathlib.Path(root) / CALIBRATION
     path.parent.mkdir(parents=True, exist_ok=True)
-    camera.save_calibration(path, rig)
+    calibration.save_calibration(path, rig)
     return path
 
 
@@ -452,7 +453,7 @@ def load_sequence(root: str | os.PathLike) -> Sequence:
     calib = root / CALIBRATION
     if not calib.is_file():
         raise MocapInputError(calib, "missing calibration")
-    rig = camera.load_calibration(calib)
+    rig = calibration.load_calibration(calib)
     meta = _load_meta(root)
     T = meta["frames"]
     views, common = [], None

@@ -24,7 +24,6 @@ import cv2
 import numpy as np
 
 from jaxmocap.errors import MocapInputError
-from jaxmocap.geometry import camera
 
 __all__ = ["BadFrame", "FrameData", "SequenceSource", "VideoSource"]
 
@@ -141,7 +140,7 @@ class VideoSource:
         calibration = pathlib.Path(calibration)
         if not calibration.exists():
             raise MocapInputError(calibration, "no such calibration file")
-        rig = camera.load_calibration(calibration)
+        rig = calibration.load_calibration(calibration)
         if rig.num_views != len(self.videos):
             raise MocapInputError(
                 calibration,

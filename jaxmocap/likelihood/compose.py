@@ -434,14 +434,14 @@ class Likelihood:
 
         ``x0 (D,)``: the pose in that frame (ground truth or initialisation); ``obs0``: its observation (with
         ``rgb``). ``colour_histogram``: per view and ROI segment, the ROI mask is the model rendered at ``x0``
-        (:func:`jaxmocap.synth.render.render_view`, visible pixels of the segment's primitive) and the reference is
+        (:func:`jaxmocap.geometry.render.render_view`, visible pixels of the segment's primitive) and the reference is
         :func:`jaxmocap.features.colour.roi_histograms` of the frame's colours over it (``(V, R, B)``; with
         ``soft=True`` the same pixels binned with the cue's triangular kernel).
         ``colour_template``: the colour at each surface sample that faces camera ``v`` at ``x0`` and lies inside
         the image (and on the foreground when the observation has one): ``(T (3, V, P), valid (V, P))``.
         """
         from jaxmocap.features.colour import roi_histograms
-        from jaxmocap.synth import render
+        from jaxmocap.geometry import render
 
         refs = list(self.references) if self.references else [None] * len(self.cues)
         x0 = jnp.asarray(x0, self.model.offset.dtype)

@@ -8,12 +8,12 @@ spheroid centred on the middle of the head bone (polar length :data:`HEAD_LENGTH
 and hands are skin-coloured. A tracker's body model (the ``body.toml`` written with the sequence, the
 ``full25`` preset with the subject's measured lengths and these radii) is an approximation of that scene.
 
-Every view is ray-cast exactly per pixel (:func:`jaxmocap.synth.render.render_view`), so depth, foreground mask and
+Every view is ray-cast exactly per pixel (:func:`jaxmocap.geometry.render.render_view`), so depth, foreground mask and
 part labels agree with the calibration's projection model; then, on the host, Lambert shading under a world
 light, compositing over a real photograph or procedural clutter, an optional global illumination change, motion
 blur (the mean of renders at consecutive mocap frames), Gaussian sensor noise, and Li & Kulić's virtual depth
 sensor (front-surface depth, smoothed inside the silhouette, Gaussian noise of ``depth_noise`` metres, 16-bit
-millimetres; :func:`jaxmocap.synth.render.virtual_depth`).
+millimetres; :func:`jaxmocap.geometry.render.virtual_depth`).
 
 Rigs and backgrounds: :mod:`jaxmocap.synth.stage`.
 
@@ -39,12 +39,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxmocap import __version__
+from jaxmocap.choices import parse_frames
 from jaxmocap.errors import MocapInputError
 from jaxmocap.geometry import body as body_mod
-from jaxmocap.geometry import camera
+from jaxmocap.geometry import camera, render
+from jaxmocap.io import calibration
 from jaxmocap.io import sequence as seqio
 from jaxmocap.io.mocap import Motion, body_dimensions_from_motion, eval_joints, eval_mapping
-from jaxmocap.synth import render
 
 # the rig and background functions stay part of this module's API (__all__)
 from jaxmocap.synth.stage import (
@@ -343,7 +344,7 @@ def _scene(points: jnp.ndarray, dressing: Dressing) -> render.Primitives:
 
 
 def scene_primitives(points: np.ndarray, dressing: Dressing) -> render.Primitives:
-    """World :class:`jaxmocap.synth.render.Primitives` of one frame's points ``(P, 3)`` (float32): ``C`` cones in
+    """World :class:`jaxmocap.geometry.render.Primitives` of one frame's points ``(P, 3)`` (float32): ``C`` cones in
     :attr:`Dressing.bones` order, then the head spheroid (label ``C``)."""
     return _scene(jnp.asarray(points, jnp.float32), dressing)
 
@@ -376,27 +377,6 @@ def body_dimensions(motion: Motion, dressing: Dressing) -> dict[str, float]:
 
 # ---------------------------------------------------------------------------------------------------------------
 # Options
-
-
-def parse_frames(spec: str | tuple[int | None, int | None] | None, num_frames: int) -> tuple[int, int]:
-    """``"A:B"`` (either side may be empty; Python slice bounds, negative from the end) → ``(a, b)`` with
-    ``0 ≤ a < b ≤ num_frames``."""
-    if spec is None:
-        a, b = None, None
-    elif isinstance(spec, str):
-        parts = spec.split(":")
-        if len(parts) != 2:
-            raise ValueError(f"frames must be A:B, got {spec!r}")
-        try:
-            a, b = (int(p) if p.strip() else None for p in parts)
-        except ValueError:
-            raise ValueError(f"frames must be A:B with integers, got {spec!r}") from None
-    else:
-        a, b = spec
-    a, b, _ = slice(a, b).indices(num_frames)
-    if a >= b:
-        raise ValueError(f"frame range {spec!r} is empty for a clip of {num_frames} frames")
-    return a, b
 
 
 def parse_size(spec: str | tuple[int, int]) -> tuple[int, int]:
@@ -438,7 +418,7 @@ def parse_clutter(level: str | float) -> float:
 @jax.jit
 def _form_image(normal, label, colours, light, background, illumination, ambient):
     """Lambert shading composited over the background, under a global illumination factor (the formula of
-    :func:`jaxmocap.synth.render.shade` / :func:`jaxmocap.synth.render.composite`, fused in one XLA loop):
+    :func:`jaxmocap.geometry.render.shade` / :func:`jaxmocap.geometry.render.composite`, fused in one XLA loop):
     ``I = clip(a · colour[label] · (ambient + (1 − ambient) max(0, n·l̂)), 0, 1)`` on the body and
     ``clip(a · background, 0, 1)`` elsewhere. ``normal (H, W, 3)`` camera frame, ``label (H, W)``, ``colours
     (L, 3)``, ``light (3,)`` unit in the camera frame, ``background (H, W, 3)`` in [0, 1]. Returns float32
@@ -470,11 +450,11 @@ def view_images(
 
     Args:
       rng: the image's generator (sensor noise, then depth noise).
-      renders: one :class:`jaxmocap.synth.render.Render` per motion-blur sub-frame, the frame's own first.
+      renders: one :class:`jaxmocap.geometry.render.Render` per motion-blur sub-frame, the frame's own first.
       colours: ``(L, 3)`` label colours; light: ``(3,)`` unit light direction in the camera frame;
       background: ``(H, W, 3)`` float in [0, 1]; illumination: global illumination factor.
       noise: RGB noise standard deviation (1 = full scale); depth_smooth, depth_noise: the virtual depth sensor
-        (:func:`jaxmocap.synth.render.virtual_depth`).
+        (:func:`jaxmocap.geometry.render.virtual_depth`).
 
     Returns:
       ``rgb (H, W, 3)`` uint8 — the mean of the sub-frames' shaded images plus ``N(0, noise²)``, rounded —,
@@ -528,7 +508,7 @@ def _rig_for(rig, size, points: np.ndarray, joints: np.ndarray) -> tuple[camera.
     if isinstance(rig, str) and not os.path.exists(rig):
         raise ValueError(f"unknown rig {rig!r}: a preset ({', '.join(PRESETS)}) or a calibration file")
     source = "Rig" if isinstance(rig, camera.Rig) else os.fspath(rig)
-    cams = rig if isinstance(rig, camera.Rig) else camera.load_calibration(rig)
+    cams = rig if isinstance(rig, camera.Rig) else calibration.load_calibration(rig)
     if any(s == (0, 0) for s in cams.image_size):
         raise MocapInputError(source, "the calibration does not state its image size")
     if size is not None:

@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxmocap.choices import parse_frames
 from jaxmocap.errors import MocapInputError
 from jaxmocap.filters.factory import GRADIENT_FILTERS, make_filter, partition_counts
 from jaxmocap.io.sources import BadFrame
@@ -49,7 +50,6 @@ FOREGROUND_CUES = ("foreground", "coverage", "silhouette_divergence")
 
 def frame_range(spec: str | None, num_frames: int) -> list[int]:
     """The input frames of ``--frames A:B`` (all without it)."""
-    from jaxmocap.synth.generate import parse_frames
 
     a, b = parse_frames(spec, num_frames)
     return list(range(a, b))

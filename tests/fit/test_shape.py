@@ -1,5 +1,5 @@
 """Body-shape calibration (:mod:`jaxmocap.fit.shape`): a synthetic subject with known, modified limb lengths is
-rendered into three views (:mod:`jaxmocap.synth.render`, the body model's own flesh) in three poses; calibration from the
+rendered into three views (:mod:`jaxmocap.geometry.render`, the body model's own flesh) in three poses; calibration from the
 default dimensions recovers the lengths."""
 
 import cv2
@@ -10,9 +10,8 @@ import pytest
 
 from jaxmocap.features.observation import make_observation
 from jaxmocap.fit import shape
-from jaxmocap.geometry import body, camera
+from jaxmocap.geometry import body, camera, render
 from jaxmocap.likelihood import compose as L
-from jaxmocap.synth import render
 from jaxmocap.synth.stage import look_at
 
 W, H = 120, 90

@@ -8,8 +8,7 @@ import pytest
 from jax import enable_x64
 from jax.test_util import check_grads
 
-from jaxmocap.geometry import body, flesh
-from jaxmocap.synth import render
+from jaxmocap.geometry import body, flesh, render
 
 # A few truncated cones (a, b, r_a, r_b) in general position, and camera centres around them.
 CONES = [

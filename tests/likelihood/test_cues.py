@@ -11,10 +11,9 @@ import pytest
 
 from jaxmocap.features.colour import bhattacharyya_distance, roi_histograms
 from jaxmocap.features.observation import make_observation
-from jaxmocap.geometry import body, camera, flesh
+from jaxmocap.geometry import body, camera, flesh, render
 from jaxmocap.likelihood import colour_cues, cues
 from jaxmocap.likelihood import compose as L
-from jaxmocap.synth import render
 from jaxmocap.synth.stage import look_at
 
 W, H = 160, 120

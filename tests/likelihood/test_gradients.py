@@ -12,10 +12,9 @@ import pytest
 from jax.test_util import check_grads
 
 from jaxmocap.features.observation import make_observation
-from jaxmocap.geometry import body, camera
+from jaxmocap.geometry import body, camera, render
 from jaxmocap.likelihood import compose as L
 from jaxmocap.likelihood import gradients
-from jaxmocap.synth import render
 from jaxmocap.synth.generate import look_at
 
 W, H = 160, 120

@@ -8,9 +8,8 @@ import numpy as np
 import pytest
 
 from jaxmocap.features.observation import make_observation
-from jaxmocap.geometry import body, camera, kinematics
+from jaxmocap.geometry import body, camera, kinematics, render
 from jaxmocap.likelihood import compose as L
-from jaxmocap.synth import render
 from jaxmocap.synth.generate import look_at
 
 W, H = 320, 240

@@ -16,7 +16,7 @@ import jaxmocap.parsec  # noqa: F401  (registers the PARSEC .cal camera reader)
 from jaxmocap import cli
 from jaxmocap.errors import MocapInputError
 from jaxmocap.geometry import body, camera
-from jaxmocap.io import asfamc
+from jaxmocap.io import asfamc, calibration
 from jaxmocap.io import sequence as seqio
 from jaxmocap.io.bvh import CMU_BVH_SCALE, load_bvh
 from jaxmocap.io.mocap import eval_joints
@@ -273,7 +273,7 @@ def test_calibration_file_rig(tmp_path, data_dir):
     seq = synth.synthesize(
         "demo", tmp_path, rig=data_dir / "calib" / "parsec" / "CALIB", frames="150:152", size=SIZE
     )
-    ref = camera.load_calibration(data_dir / "calib" / "parsec" / "CALIB")
+    ref = calibration.load_calibration(data_dir / "calib" / "parsec" / "CALIB")
     assert seq.rig.names == ref.names and seq.rig.image_size == (SIZE,) * 4
     np.testing.assert_allclose(np.asarray(seq.rig.R), np.asarray(ref.R), atol=1e-12)
     np.testing.assert_allclose(np.asarray(seq.rig.K)[:, 0, 0], np.asarray(ref.K)[:, 0, 0] / 4, rtol=1e-12)

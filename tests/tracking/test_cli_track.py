@@ -15,7 +15,7 @@ import pytest
 
 from jaxmocap import cli
 from jaxmocap.geometry import camera
-from jaxmocap.io import export
+from jaxmocap.io import calibration, export
 from jaxmocap.synth import generate as synth
 
 # a small, fast configuration: 60 frames at 60 fps of 96x72 px, upper body, two cues
@@ -182,7 +182,7 @@ def _video(path, frames, size=(64, 48), moving=True):
 @pytest.fixture
 def videos(tmp_path):
     calib = tmp_path / "calib.toml"
-    camera.save_calibration(calib, _rig())
+    calibration.save_calibration(calib, _rig())
     return tmp_path, calib, [_video(tmp_path / "a.avi", 6), _video(tmp_path / "b.avi", 6)]
 
 
@@ -239,7 +239,7 @@ def test_calibration_disagrees_with_videos(capsys, videos):
     code, err = _main(capsys, "track", "--videos", vids[0], "--calibration", calib, "--out", tmp / "o")
     _one_error(code, err, "calib.toml", "2 cameras but 1 videos")
     other = tmp / "other.toml"
-    camera.save_calibration(other, _rig(size=(80, 60)))
+    calibration.save_calibration(other, _rig(size=(80, 60)))
     code, err = _main(capsys, "track", "--videos", *vids, "--calibration", other, "--out", tmp / "o")
     _one_error(code, err, "other.toml", "80x60", "64x48")
 
@@ -264,7 +264,7 @@ def test_non_finite_depth(capsys, videos):
 
 def test_empty_scene(capsys, tmp_path):
     calib = tmp_path / "calib.toml"
-    camera.save_calibration(calib, _rig())
+    calibration.save_calibration(calib, _rig())
     vids = [_video(tmp_path / f"{k}.avi", 6, moving=False) for k in "ab"]
     code, err = _main(capsys, "track", "--videos", *vids, "--calibration", calib, "--out", tmp_path / "o")
     _one_error(code, err, "no person")

@@ -8,8 +8,7 @@ from jax import enable_x64
 from scipy.optimize import brentq
 
 from jaxmocap.errors import MocapInputError
-from jaxmocap.geometry import body, flesh
-from jaxmocap.synth import render
+from jaxmocap.geometry import body, flesh, render
 
 W, H = 200, 150
 K = np.array([[300.0, 0.0, 99.5], [0.0, 300.0, 74.5], [0.0, 0.0, 1.0]])
