@@ -28,6 +28,7 @@ from jaxmocap.likelihood import compose as L
 from jaxmocap.synth import generate as synth
 from jaxmocap.synth.generate import look_at
 from jaxmocap.tracking import tracker
+from jaxmocap.tracking.options import TrackOptions
 
 W, H = 640, 480
 F = np.float32
@@ -154,9 +155,9 @@ class Config:
     cues: tuple[str, ...] = BASE_CUES
 
 
-def track_options(cfg: Config) -> tracker.TrackOptions:
+def track_options(cfg: Config) -> TrackOptions:
     """The tracker options of ``cfg``: initialised from the ground truth, ground-truth masks as the foreground."""
-    return tracker.TrackOptions(
+    return TrackOptions(
         model=cfg.model,
         filter=cfg.filter,
         particles=cfg.particles,

@@ -284,6 +284,7 @@ def _demo(args) -> int:
     from jaxmocap.io.sources import SequenceSource
     from jaxmocap.synth import generate as synth
     from jaxmocap.tracking import tracker
+    from jaxmocap.tracking.options import TrackOptions
 
     _silence_opencv()
     t0 = time.monotonic()
@@ -298,7 +299,7 @@ def _demo(args) -> int:
     t1 = time.monotonic()
     print(f"    {seq.num_frames} frames x {len(seq.views)} views in {t1 - t0:.1f} s", flush=True)
     print(f"2/4 tracking with {args.filter} ...", flush=True)
-    options = tracker.TrackOptions(
+    options = TrackOptions(
         filter=args.filter,
         particles=args.particles,
         layers=args.layers,

@@ -16,7 +16,7 @@ Scenario (all choices stated here):
 
 Tables:
 
-(a) every filter of :data:`jaxmocap.tracking.tracker.FILTERS` on ``full25`` at an equal compute budget of ``--budget``
+(a) every filter of :data:`jaxmocap.tracking.FILTERS` on ``full25`` at an equal compute budget of ``--budget``
     likelihood evaluations per frame (default 600: 600 particles for SIR / ICONDENSATION; 200 × 3 layers for the
     annealed filters; ``600 / G`` per partition for partitioned sampling with ``G`` DOF groups; ``600 / (2 G)`` per
     level for the two-layer hierarchical filter);
@@ -54,7 +54,9 @@ import common
 from scenes import CachedTracker, Config, make_sequences, track_options
 
 from jaxmocap.eval import metrics
-from jaxmocap.tracking import tracker  # noqa: E402
+from jaxmocap.filters.factory import particles_text, partition_groups  # noqa: E402
+from jaxmocap.io.sources import SequenceSource  # noqa: E402
+from jaxmocap.tracking.options import FILTERS, build_model  # noqa: E402
 
 RESULTS = common.RESULTS / "accuracy.md"
 
@@ -65,7 +67,7 @@ THESIS_FILTERS = ("apf", "m-apf", "fbapf", "fbapf2", "fbapf3")
 
 def run_config(cfg: Config, seq_dir: pathlib.Path, seeds: int, work: pathlib.Path) -> dict:
     """Errors (mm, one per seed) and the median step time of ``cfg`` on one sequence."""
-    source = tracker.SequenceSource(seq_dir)
+    source = SequenceSource(seq_dir)
     try:
         options = track_options(cfg)
         out = work / "track"
@@ -85,9 +87,9 @@ def run_config(cfg: Config, seq_dir: pathlib.Path, seeds: int, work: pathlib.Pat
 
 
 def configs_a(budget: int) -> list[Config]:
-    groups = len(tracker.partition_groups(tracker.build_model("full25", None)))
+    groups = len(partition_groups(build_model("full25", None)))
     out = []
-    for f in tracker.FILTERS:
+    for f in FILTERS:
         if f in ("sir", "icondensation"):
             n, L = budget, 1
         elif f == "partitioned":
@@ -174,7 +176,7 @@ def table_md(rows: list[dict], clip_names: list[str], particles_col: bool = True
         c = r["config"]
         cells = [fmt(r["per_clip"][n]) for n in clip_names]
         lines.append(
-            f"| {r['label']} | {tracker.particles_text(c.particles)} × {c.layers} | {', '.join(c.cues)} | "
+            f"| {r['label']} | {particles_text(c.particles)} × {c.layers} | {', '.join(c.cues)} | "
             + " | ".join(cells)
             + f" | **{fmt(r['errors'])}** | {r['step_s'] * 1e3:.0f} | {r['lost']:.1f} |"
         )

@@ -37,7 +37,8 @@ from jaxmocap.geometry.body import EVAL_JOINTS
 from jaxmocap.io import calibration
 from jaxmocap.io.pose2sim import KEYPOINT_OF_TRC, Pose2SimSource, body_dimensions, reference_joints
 from jaxmocap.tracking.init import KEYPOINT_OF
-from jaxmocap.tracking.tracker import Tracker, TrackOptions
+from jaxmocap.tracking.options import TrackOptions
+from jaxmocap.tracking.tracker import Tracker
 
 DATA = pathlib.Path(os.environ.get("JAXMOCAP_DATA", "/work/shared/data")) / "video" / "pose2sim_demo"
 DERIVED = "derived_by_pose2sim_a948c20"

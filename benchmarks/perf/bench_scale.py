@@ -46,7 +46,8 @@ def _child(args) -> dict:
     import numpy as np
 
     from jaxmocap.filters import sharding as scale
-    from jaxmocap.tracking import sweep, tracker
+    from jaxmocap.filters.factory import make_filter
+    from jaxmocap.tracking import sweep
 
     spec = sweep.make_spec(
         sequences=[args.seq], filters=["apf"], model="upper9", cues="foreground,coverage", layers=args.layers
@@ -58,7 +59,7 @@ def _child(args) -> dict:
     out = {"devices": jax.device_count(), "frames": len(prep.frames)}
 
     def make(n):
-        return tracker.make_filter(
+        return make_filter(
             "apf", tr.loglik, tr.model, tr.std, n, tr.layers, prep.x0, 3.0 * tr.std, tr.o.survival_target
         )
 

@@ -29,7 +29,8 @@ os.environ.setdefault("JAX_PLATFORMS", "cpu")
 import common
 import scenes
 
-from jaxmocap.tracking import tracker
+from jaxmocap.filters.factory import particles_text
+from jaxmocap.io.sources import SequenceSource
 
 RESULTS = common.RESULTS / "compile_partitions.md"
 CUES = ("foreground", "coverage:4", "edge_fraction", "depth")
@@ -59,10 +60,10 @@ class Variant(scenes.CachedTracker):
 def measure(seq_dir, work, flt, particles, layers, repeats, log=print) -> dict:
     """First-step seconds and median step milliseconds of both variants of one configuration."""
     options = scenes.track_options(scenes.Config("", "full25", flt, particles, layers, CUES))
-    label = f"{flt} {tracker.particles_text(particles)} × {layers}"
+    label = f"{flt} {particles_text(particles)} × {layers}"
     runs, first = {}, {}
     for scan in (False, True):
-        run = Variant(tracker.SequenceSource(seq_dir), work / "track", options, quiet=True, scan=scan)
+        run = Variant(SequenceSource(seq_dir), work / "track", options, quiet=True, scan=scan)
         run.run()
         runs[scan], first[scan] = run, run.step_seconds[0]
         log(f"{label}, scan_partitions={scan}: first step {first[scan]:.1f} s")

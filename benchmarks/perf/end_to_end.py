@@ -21,7 +21,7 @@ Reported: frames/s after the first frame of the plain tracker (its own ``frames_
 including reading the PNGs, features, the step, writing poses; the tracker prepares frame ``t + 1`` on the host
 while the compiled step of frame ``t`` runs), the same for a profiled run that waits for each step (features and
 step serialised: a lower bound), and that run's profile split per frame: feature preprocessing (reading +
-:class:`~jaxmocap.tracking.tracker.FeatureBuilder`), the compiled filter step, and within the step the likelihood (the
+:class:`~jaxmocap.tracking.FeatureBuilder`), the compiled filter step, and within the step the likelihood (the
 compiled likelihood timed alone on batches of the step's sizes) vs the rest (resampling, diffusion, β search,
 estimates).
 CPU ms/frame: process CPU time (all threads) of features + step, median over frames: on a shared machine the
@@ -51,8 +51,11 @@ os.environ.setdefault("JAX_PLATFORMS", "cpu")
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
+from jaxmocap.filters.factory import particles_text  # noqa: E402
+from jaxmocap.io.sources import SequenceSource  # noqa: E402
 from jaxmocap.synth import generate as synth
 from jaxmocap.tracking import tracker  # noqa: E402
+from jaxmocap.tracking.options import TrackOptions  # noqa: E402
 
 #: (label, model, filter, particles per layer / partition, layers, cues, likelihood evaluations per frame, target)
 CONFIGS = (
@@ -136,10 +139,10 @@ def run(quick: bool = False, frames: int = 20, log=print) -> list[dict]:
             if quick:
                 n = tuple(max(c // 20, 4) for c in n) if isinstance(n, tuple) else max(n // 20, 4)
                 evals = sum(n) if isinstance(n, tuple) else max(evals // 20, 4)
-            source = tracker.SequenceSource(seq_dir)
+            source = SequenceSource(seq_dir)
             try:
                 fg = "mask" if quick else "median"
-                opts = tracker.TrackOptions(
+                opts = TrackOptions(
                     model=model,
                     filter=flt,
                     particles=n,
@@ -219,7 +222,7 @@ def to_markdown(rows: list[dict], quick: bool = False) -> str:
         bound = max(parts, key=parts.get)
         share = parts[bound] / max(sum(parts.values()), 1e-9)
         lines.append(
-            f"| {r['label']} | {r['model']} | {r['filter']} | {tracker.particles_text(r['particles'])} × {r['layers']} | {r['evaluations']} | "
+            f"| {r['label']} | {r['model']} | {r['filter']} | {particles_text(r['particles'])} × {r['layers']} | {r['evaluations']} | "
             f"**{r['fps']:.2f}**{met} | {tgt} | {r['fps_serial']:.2f} | {r['cpu_ms']:.0f} | {r['foreground']} | "
             f"{r['feature_ms']:.1f} | {r['step_ms']:.1f} | {r['likelihood_ms']:.1f} | {r['rest_ms']:.1f} | "
             f"{bound} ({100 * share:.0f} %) |"

@@ -7,7 +7,7 @@ the tracker's default image cues ``foreground`` + ``edge_distance`` (600 surface
 particles = the rest pose + N(0, 0.05²) noise. Every point is the median of ``repeats`` calls after compilation:
 
 * particles N (2 views, 320×240): :meth:`jaxmocap.likelihood.compose.Likelihood.batch` of N particles;
-* layers L (N = 200, 2 views, 320×240): one compiled APF step (:func:`jaxmocap.tracking.tracker.make_filter`, Deutscher's
+* layers L (N = 200, 2 views, 320×240): one compiled APF step (:func:`jaxmocap.tracking.make_filter`, Deutscher's
   survival-rate rule) with L layers: L likelihood batches + resampling + diffusion;
 * views V ∈ {1, 2, 4} (N = 1000, 320×240) and image size (N = 1000, 2 views).
 
@@ -37,9 +37,10 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
 from jaxmocap.features.observation import make_observation  # noqa: E402
+from jaxmocap.filters.factory import make_filter  # noqa: E402
 from jaxmocap.geometry import body, camera
 from jaxmocap.likelihood import compose as lk  # noqa: E402
-from jaxmocap.tracking import tracker  # noqa: E402
+from jaxmocap.tracking.options import diffusion_std  # noqa: E402
 
 
 def ring_rig(views: int, size: tuple[int, int]) -> camera.Rig:
@@ -127,17 +128,17 @@ def run(quick: bool = False, repeats: int = 7) -> dict:
     n_l = 20 if quick else 200
     for L in layers:
         likL = _likelihood(model, rig2, L, pts)
-        flt = tracker.make_filter(
+        flt = make_filter(
             "apf",
             lambda X, o, layer, likL=likL: likL.batch(X, o, layer),
             model,
-            tracker.diffusion_std(model),
+            diffusion_std(model),
             n_l,
             L,
             prior_mean=np.asarray(model.rest_pose),
-            prior_std=3 * tracker.diffusion_std(model),
+            prior_std=3 * diffusion_std(model),
         )
-        state = flt.init(jax.random.key(0), model.rest_pose, jnp.asarray(tracker.diffusion_std(model)))
+        state = flt.init(jax.random.key(0), model.rest_pose, jnp.asarray(diffusion_std(model)))
         step = jax.jit(flt.step)
         s = _median(lambda step=step, state=state: step(jax.random.key(1), state, obs2)[0].particles, repeats)
         mem = _peak_mb(step, jax.random.key(1), state, obs2)

@@ -13,73 +13,17 @@ frame goes through them:
 * **initialisation** — :mod:`jaxmocap.tracking.init`;
 * **loop and outputs** — :mod:`jaxmocap.tracking.loop` (track loss, re-initialisation, resume) and
   :mod:`jaxmocap.tracking.run_folder`.
-
-The names of those modules that the tracker's users reach for are re-exported here.
 """
 
 from __future__ import annotations
 
 import os
 
-from jaxmocap.filters.factory import (
-    HYBRID_MOVE,
-    make_filter,
-    particles_text,
-    partition_counts,
-    partition_groups,
-)
-from jaxmocap.io.sources import BadFrame, FrameData, SequenceSource, VideoSource
-from jaxmocap.likelihood.coverage import COVERAGE_DMAX, coverage_energy, silhouette_samples
-from jaxmocap.tracking.features import FeatureBuilder, TrackObservation
 from jaxmocap.tracking.loop import TrackingLoop
-from jaxmocap.tracking.options import (
-    ANNEALED,
-    FILTERS,
-    FOREGROUNDS,
-    GRADIENT_FILTERS,
-    MODELS,
-    TrackOptions,
-    build_model,
-    default_cues,
-    default_layers,
-    default_particles,
-    diffusion_std,
-    parse_cues,
-)
-from jaxmocap.tracking.progress import Progress
+from jaxmocap.tracking.options import TrackOptions
 from jaxmocap.tracking.setup import TrackSetup
 
-__all__ = [
-    "ANNEALED",
-    "COVERAGE_DMAX",
-    "FILTERS",
-    "FOREGROUNDS",
-    "GRADIENT_FILTERS",
-    "HYBRID_MOVE",
-    "MODELS",
-    "BadFrame",
-    "FeatureBuilder",
-    "FrameData",
-    "Progress",
-    "SequenceSource",
-    "TrackObservation",
-    "TrackOptions",
-    "TrackSetup",
-    "Tracker",
-    "VideoSource",
-    "build_model",
-    "coverage_energy",
-    "default_cues",
-    "default_layers",
-    "default_particles",
-    "diffusion_std",
-    "make_filter",
-    "parse_cues",
-    "partition_counts",
-    "partition_groups",
-    "particles_text",
-    "silhouette_samples",
-]
+__all__ = ["Tracker"]
 
 
 class Tracker(TrackingLoop):

@@ -11,9 +11,10 @@ import pytest
 
 from jaxmocap.filters.annealing import Schedule
 from jaxmocap.filters.apf import APF
+from jaxmocap.filters.factory import HYBRID_MOVE, make_filter
 from jaxmocap.filters.hybrid import DEFAULT_REFINE, GradientMove, HybridAPF, gradient_ascent
 from jaxmocap.geometry import body
-from jaxmocap.tracking import tracker
+from jaxmocap.tracking.options import ANNEALED, FILTERS, GRADIENT_FILTERS, diffusion_std
 
 SIGMA = 0.05  # per-entry standard deviation of the Gaussian likelihood around the target
 D = 6
@@ -172,20 +173,18 @@ def test_refined_estimate_is_never_worse_than_the_apf(apf_runs):
 def test_tracker_builds_the_hybrid_filters():
     """``--filter hybrid`` / ``apf-refine``: :class:`HybridAPF` with the tracker's schedule and limits."""
     model = body.upper9()
-    std = tracker.diffusion_std(model)
+    std = diffusion_std(model)
     x0 = np.asarray(model.rest_pose, np.float64)
     args = (gaussian_loglik, model, std, 40, 4, x0, 3 * std)
-    h = tracker.make_filter("hybrid", *args)
-    r = tracker.make_filter("apf-refine", *args)
+    h = make_filter("hybrid", *args)
+    r = make_filter("apf-refine", *args)
     assert isinstance(h, HybridAPF) and isinstance(r, HybridAPF)
-    assert h.move == GradientMove(**tracker.HYBRID_MOVE) and h.refine is None
+    assert h.move == GradientMove(**HYBRID_MOVE) and h.refine is None
     assert r.move is None and r.refine == DEFAULT_REFINE
     for f in (h, r):
         assert f.schedule.kind == "survival" and f.num_layers == 4
         np.testing.assert_array_equal(np.asarray(f.lower), np.asarray(model.lower))
-    assert {"hybrid", "apf-refine"} <= set(tracker.FILTERS) and set(tracker.GRADIENT_FILTERS) <= set(
-        tracker.ANNEALED
-    )
+    assert {"hybrid", "apf-refine"} <= set(FILTERS) and set(GRADIENT_FILTERS) <= set(ANNEALED)
     # fewer particles than the default k: k shrinks to the particle count
-    small = tracker.make_filter("hybrid", gaussian_loglik, model, std, 3, 4, x0, 3 * std)
+    small = make_filter("hybrid", gaussian_loglik, model, std, 3, 4, x0, 3 * std)
     assert small.move.best_k == 3

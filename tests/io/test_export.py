@@ -14,7 +14,7 @@ import pytest
 import jaxmocap.parsec  # noqa: F401  (registers the parsec31 body)
 from jaxmocap.geometry import body
 from jaxmocap.io import bvh, export, mocap
-from jaxmocap.tracking import tracker
+from jaxmocap.tracking.options import build_model
 
 with warnings.catch_warnings():  # PyGLM (under bvhio) warns about its import name on import
     warnings.simplefilter("ignore", PendingDeprecationWarning)
@@ -25,7 +25,7 @@ MODELS = ("upper9", "upper14", "full25", "parsec31")
 
 
 def _model(name):
-    return tracker.build_model(name, None)
+    return build_model(name, None)
 
 
 def _random_states(model, T, seed):

@@ -14,7 +14,8 @@ from jaxmocap.errors import MocapInputError
 from jaxmocap.geometry import camera
 from jaxmocap.geometry.body import EVAL_JOINTS
 from jaxmocap.io.pose2sim import KEYPOINT_OF_TRC, Pose2SimSource, body_dimensions, reference_joints
-from jaxmocap.tracking.tracker import Tracker, TrackOptions
+from jaxmocap.tracking.options import TrackOptions
+from jaxmocap.tracking.tracker import Tracker
 
 DATA = pathlib.Path(__file__).parents[1] / "data" / "pose2sim_small"
 CAMS = [f"cam0{c}" for c in range(1, 5)]

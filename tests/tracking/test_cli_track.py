@@ -187,10 +187,10 @@ def videos(tmp_path):
 
 
 def test_parser_choices_match_the_tracker():
-    from jaxmocap.tracking import tracker
+    from jaxmocap.tracking.options import FILTERS, FOREGROUNDS, MODELS
 
-    assert cli._MODELS == tracker.MODELS and cli._FILTERS == tracker.FILTERS
-    assert cli._FOREGROUNDS == tracker.FOREGROUNDS
+    assert cli._MODELS == MODELS and cli._FILTERS == FILTERS
+    assert cli._FOREGROUNDS == FOREGROUNDS
 
 
 def test_missing_input(capsys, tmp_path):
@@ -391,10 +391,10 @@ def test_demo_command(capsys, tmp_path):
 def test_particle_count_per_partition(capsys, sequence, tmp_path):
     """``--particles`` with one count per partition (Li & Kulić's unequal counts) reaches the partitioned filter:
     the carried set has the last partition's count and the summary lists every count."""
+    from jaxmocap.filters.factory import partition_groups
     from jaxmocap.geometry import body
-    from jaxmocap.tracking import tracker
 
-    groups = tracker.partition_groups(body.upper9())
+    groups = partition_groups(body.upper9())
     counts = [12 + 4 * k for k in range(len(groups))]
     text = ",".join(map(str, counts))
     out = tmp_path / "o"

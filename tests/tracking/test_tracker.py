@@ -11,10 +11,22 @@ import numpy as np
 import pytest
 
 from jaxmocap.eval import metrics
+from jaxmocap.filters.factory import make_filter, partition_groups
 from jaxmocap.geometry import body
 from jaxmocap.io import bvh, export
+from jaxmocap.io.sources import SequenceSource
+from jaxmocap.likelihood.coverage import coverage_energy
 from jaxmocap.synth import generate as synth
 from jaxmocap.tracking import tracker
+from jaxmocap.tracking.options import (
+    FILTERS,
+    TrackOptions,
+    default_cues,
+    default_layers,
+    default_particles,
+    diffusion_std,
+    parse_cues,
+)
 
 # ---------------------------------------------------------------------------------------------------------------
 # The filter factory on a Gaussian likelihood
@@ -38,8 +50,8 @@ def _toy(name, model, layers):
     D = model.num_dofs
     target = np.asarray(model.rest_pose, np.float64) + 0.1 * np.sin(np.arange(D))
     x0 = target + 0.15
-    std = tracker.diffusion_std(model) * 0.5
-    f = tracker.make_filter(name, _toy_loglik, model, std, 200, layers, prior_mean=x0, prior_std=3 * std)
+    std = diffusion_std(model) * 0.5
+    f = make_filter(name, _toy_loglik, model, std, 200, layers, prior_mean=x0, prior_std=3 * std)
     return f, target, x0, std
 
 
@@ -49,8 +61,8 @@ def test_filter_factory_builds_every_filter():
 
     model = body.upper9()
     kinds = {}
-    for name in tracker.FILTERS:
-        f, *_ = _toy(name, model, tracker.default_layers(name)[0])
+    for name in FILTERS:
+        f, *_ = _toy(name, model, default_layers(name)[0])
         kinds[name] = type(f)
         if isinstance(f, APF):
             assert f.num_layers == 5
@@ -58,7 +70,7 @@ def test_filter_factory_builds_every_filter():
             assert f.first_layer == ("icondensation" if name == "iapf" else "dynamics")
             np.testing.assert_allclose(f.schedule.scales, [0.25 ** (l / 4) for l in range(5)])
         if isinstance(f, Partitioned):
-            assert f.groups == tracker.partition_groups(model)
+            assert f.groups == partition_groups(model)
             assert (f.schedule is not None) == (name == "hierarchical")
             assert f.scan_partitions and f.runs() == [(0, len(f.groups))]  # one count: a single scanned stage
         # the heading is averaged as an angle
@@ -67,12 +79,10 @@ def test_filter_factory_builds_every_filter():
     assert {kinds[n] for n in ("apf", "iapf", "fbapf", "fbapf2", "fbapf3", "m-apf")} == {APF}
     assert kinds["partitioned"] is Partitioned and kinds["hierarchical"] is Partitioned
     counts = (30, 10, 20, 20)
-    f = tracker.make_filter(
-        "partitioned", _toy_loglik, model, np.ones(model.num_dofs), counts, 1, np.zeros(13), 1
-    )
+    f = make_filter("partitioned", _toy_loglik, model, np.ones(model.num_dofs), counts, 1, np.zeros(13), 1)
     assert f.counts == counts and not f.scan_partitions  # unequal counts: partitions unrolled
     with pytest.raises(ValueError, match="unknown filter"):
-        tracker.make_filter("kalman", _toy_loglik, model, np.ones(13), 10, 1, np.zeros(13), np.ones(13))
+        make_filter("kalman", _toy_loglik, model, np.ones(13), 10, 1, np.zeros(13), np.ones(13))
 
 
 @pytest.mark.parametrize("name", ["icondensation", "apf"])
@@ -80,9 +90,9 @@ def test_filters_move_to_a_static_target(name):
     """Started 0.15 away from a static target on every DOF of upper9, the filter ends near it: the RMS error over
     the DOFs falls below 0.05 (a third of the start; the likelihood's own spread is σ = 0.05 per DOF). A filter
     that ignored the weights would keep the start error plus its random walk. ICONDENSATION's detection
-    proposal is centred on the target (the proposal-centre wiring of :class:`tracker.TrackObservation`)."""
+    proposal is centred on the target (the proposal-centre wiring of :class:`TrackObservation`)."""
     model = body.upper9()
-    f, target, x0, std = _toy(name, model, tracker.default_layers(name)[0])
+    f, target, x0, std = _toy(name, model, default_layers(name)[0])
     obs = _Toy(jnp.asarray(target, jnp.float32), jnp.asarray(target, jnp.float32), jnp.asarray(True))
     step = jax.jit(f.step)
     state = f.init(jax.random.key(0), jnp.asarray(x0, jnp.float32), jnp.asarray(std))
@@ -94,7 +104,7 @@ def test_filters_move_to_a_static_target(name):
 
 def test_partition_groups_and_defaults():
     m = body.full25()
-    groups = tracker.partition_groups(m)
+    groups = partition_groups(m)
     assert [len(g) for g in groups] == [6, 3, 4, 4, 4, 4]
     assert sorted(d for g in groups for d in g) == list(range(m.num_dofs))
     assert [m.dof_names[g[0]] for g in groups] == [
@@ -105,14 +115,14 @@ def test_partition_groups_and_defaults():
         "left_hip_rx",
         "right_hip_rx",
     ]
-    std = tracker.diffusion_std(m, fps=30.0)
-    np.testing.assert_allclose(tracker.diffusion_std(m, fps=60.0), std / 2, rtol=1e-6)
+    std = diffusion_std(m, fps=30.0)
+    np.testing.assert_allclose(diffusion_std(m, fps=60.0), std / 2, rtol=1e-6)
     assert std[m.dof_index("root_tx")] == pytest.approx(0.03)
-    assert tracker.default_particles("full25", "sir") == 5 * tracker.default_particles("full25", "apf")
-    assert tracker.parse_cues("foreground,edge_distance:2") == (("foreground", 1.0), ("edge_distance", 2.0))
+    assert default_particles("full25", "sir") == 5 * default_particles("full25", "apf")
+    assert parse_cues("foreground,edge_distance:2") == (("foreground", 1.0), ("edge_distance", 2.0))
     with pytest.raises(ValueError, match="unknown cue"):
-        tracker.parse_cues("foreground,nose")
-    assert [n for n, _ in tracker.default_cues("full25", True, False)] == [
+        parse_cues("foreground,nose")
+    assert [n for n, _ in default_cues("full25", True, False)] == [
         "foreground",
         "edge_distance",
         "coverage",
@@ -138,7 +148,7 @@ def test_coverage_energy_counts_uncovered_samples():
     far = np.array([[5.0, 5.0], [630.0, 5.0], [5.0, 470.0]])
     uv = jnp.asarray(np.concatenate([on, far])[None], jnp.float32)
     w = jnp.ones(uv.shape[:2], jnp.float32)
-    energy = jax.jit(tracker.coverage_energy)
+    energy = jax.jit(coverage_energy)
     e = energy(m, rj, x, uv, w, jnp.asarray([10.0]))
     assert float(e[0]) == pytest.approx(3 / uv.shape[1], abs=1e-6)
     # empty slots (weight 0) do not count
@@ -163,8 +173,8 @@ def sequence(tmp_path_factory):
 @pytest.fixture(scope="module")
 def tracked(sequence, tmp_path_factory):
     out = tmp_path_factory.mktemp("track")
-    src = tracker.SequenceSource(sequence)
-    run = tracker.Tracker(src, out, tracker.TrackOptions(particles=200, layers=4, seed=0), quiet=True)
+    src = SequenceSource(sequence)
+    run = tracker.Tracker(src, out, TrackOptions(particles=200, layers=4, seed=0), quiet=True)
     summary = run.run()
     return run, out, summary
 
@@ -238,8 +248,8 @@ class _Blanked:
 def test_track_loss_is_detected_and_reinitialised(sequence, tmp_path):
     """Frames without a person are reported lost and the filter is re-initialised (from the last good estimate:
     no detection there); tracking goes on afterwards."""
-    src = _Blanked(tracker.SequenceSource(sequence), blank=(5, 6))
-    opts = tracker.TrackOptions(model="upper9", cues="coverage", particles=60, layers=2, frames="0:9")
+    src = _Blanked(SequenceSource(sequence), blank=(5, 6))
+    opts = TrackOptions(model="upper9", cues="coverage", particles=60, layers=2, frames="0:9")
     summary = tracker.Tracker(src, tmp_path, opts, quiet=True).run()
     recs = json.loads((tmp_path / "diagnostics.json").read_text())["frames"]
     lost = [r["frame"] for r in recs if r["lost"]]
@@ -273,9 +283,7 @@ def test_colour_cues_track_with_first_frame_references_and_resume(sequence, tmp_
         "foreground,edge_distance,colour_histogram,skin,blobs3d,homogeneous_colour,colour_template,coverage"
     )
     opts = dict(model="upper14", filter="apf", cues=cues, particles=30, layers=2, frames="0:4", seed=3)
-    full = tracker.Tracker(
-        tracker.SequenceSource(sequence), tmp_path / "full", tracker.TrackOptions(**opts), quiet=True
-    )
+    full = tracker.Tracker(SequenceSource(sequence), tmp_path / "full", TrackOptions(**opts), quiet=True)
     full.run()
     lik = full.likelihood
     names = [c.name for c in lik.cues]
@@ -288,13 +296,13 @@ def test_colour_cues_track_with_first_frame_references_and_resume(sequence, tmp_
     assert float(e[names.index("colour_template")]) == pytest.approx(0.0, abs=1e-5)  # √(… + ε) per sample
 
     part = tmp_path / "part"
-    src = _Interrupting(tracker.SequenceSource(sequence), stop=3)
+    src = _Interrupting(SequenceSource(sequence), stop=3)
     with pytest.raises(KeyboardInterrupt):
-        tracker.Tracker(src, part, tracker.TrackOptions(**opts), quiet=True).run()
+        tracker.Tracker(src, part, TrackOptions(**opts), quiet=True).run()
     done = export.load_poses(part)["frame_index"]
     assert 0 < len(done) < 4
-    src = _Interrupting(tracker.SequenceSource(sequence), stop=-1)  # the same input description, no Ctrl-C
-    tracker.Tracker(src, part, tracker.TrackOptions(**opts, resume=True), quiet=True).run()
+    src = _Interrupting(SequenceSource(sequence), stop=-1)  # the same input description, no Ctrl-C
+    tracker.Tracker(src, part, TrackOptions(**opts, resume=True), quiet=True).run()
     a, b = export.load_poses(tmp_path / "full"), export.load_poses(part)
     np.testing.assert_array_equal(a["frame_index"], b["frame_index"])
     np.testing.assert_allclose(a["state"], b["state"], rtol=0, atol=1e-6)
@@ -306,8 +314,8 @@ def test_hybrid_filter_of_the_tracker_takes_the_fast_gradient_path(sequence, mon
     from jaxmocap.filters.hybrid import HybridAPF
     from jaxmocap.likelihood import gradients
 
-    opts = tracker.TrackOptions(filter="hybrid", model="upper9", particles=8, layers=2, frames="0:2")
-    run = tracker.Tracker(tracker.SequenceSource(sequence), os.devnull, opts, quiet=True)
+    opts = TrackOptions(filter="hybrid", model="upper9", particles=8, layers=2, frames="0:2")
+    run = tracker.Tracker(SequenceSource(sequence), os.devnull, opts, quiet=True)
     tobs = run._observe(0)[0]
     run._make_filter(np.asarray(run.model.rest_pose))
     f = run.filter
