@@ -227,59 +227,16 @@ class Topology:
         return len(self.dof_names)
 
 
-def _local_transform(topology: Topology, s: int, rest_rotation, offset, dof_axis, x) -> tuple[Rot9, Vec3]:
-    """``(R, t)`` of segment ``s`` relative to its parent: ``(R_rest,s, o_s) · Π_{k ∈ dofs(s)} exp(ξ̂_k x_k)``,
-    unrolled on scalars (a rotation the identity when ``s`` has neither a rest rotation nor a revolute DOF)."""
-    R: Rot9 | None = None
-    t: Vec3 = (offset[s, 0], offset[s, 1], offset[s, 2])
-    if topology.rest_rotated[s]:
-        R = to9(rest_rotation[s])
-    for k in topology.segment_dofs[s]:
-        a = (dof_axis[k, 0], dof_axis[k, 1], dof_axis[k, 2])
-        if topology.dof_kinds[k] == "P":
-            d = a if R is None else matvec9(R, a)
-            t = tuple(t[i] + d[i] * x[k] for i in range(3))
-        else:
-            Rk = axis_angle9(a, x[k])
-            R = Rk if R is None else matmul9(R, Rk)
-    if R is None:
-        R = tuple(jnp.asarray(e, dtype=x.dtype) for e in (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0))
-    return R, t
-
-
-@dataclasses.dataclass(frozen=True)
-class _ChildTable:
-    """Static tables of the non-root segments (in order) for the loop of :func:`segment_poses`: each row one
-    segment, its DOFs padded to ``M`` slots (a padded slot has angle and displacement 0).
-
-    Attributes: ``segment, parent (C,)``; ``dof (C, M)`` state indices (0 where padded); ``revolute, prismatic
-    (C, M)`` slot kinds; ``rotated (C,)`` rest rotation used; the flags ``any_*`` say which code the loop needs.
-    """
-
-    segment: np.ndarray
-    parent: np.ndarray
-    dof: np.ndarray
-    revolute: np.ndarray
-    prismatic: np.ndarray
-    rotated: np.ndarray
-
-
-def _child_table(topology: Topology) -> _ChildTable:
-    kids = [s for s in range(topology.num_segments) if topology.parents[s] >= 0]
-    M = max(len(topology.segment_dofs[s]) for s in kids)
-    dof = np.zeros((len(kids), M), np.int32)
-    kind = np.full((len(kids), M), "-")
-    for r, s in enumerate(kids):
-        for j, k in enumerate(topology.segment_dofs[s]):
-            dof[r, j], kind[r, j] = k, topology.dof_kinds[k]
-    return _ChildTable(
-        segment=np.asarray(kids, np.int32),
-        parent=np.asarray([topology.parents[s] for s in kids], np.int32),
-        dof=dof,
-        revolute=kind == "R",
-        prismatic=kind == "P",
-        rotated=np.asarray([topology.rest_rotated[s] for s in kids]),
-    )
+def _slot_table(topology: Topology) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(dof, revolute, prismatic)``, each ``(S, M)``: the state index acting in slot ``j`` of segment ``s`` (its
+    DOFs in order, padded to the largest count ``M`` with index 0) and the slot's kind (both False when padded)."""
+    M = max(1, max(len(d) for d in topology.segment_dofs))
+    dof = np.zeros((topology.num_segments, M), np.int32)
+    kind = np.full((topology.num_segments, M), "-")
+    for s, dofs in enumerate(topology.segment_dofs):
+        for j, k in enumerate(dofs):
+            dof[s, j], kind[s, j] = k, topology.dof_kinds[k]
+    return dof, kind == "R", kind == "P"
 
 
 def segment_poses(
@@ -304,69 +261,60 @@ def segment_poses(
     Returns:
       ``R (S, 3, 3)`` and ``t (S, 3)``: segment frame → world.
 
-    The roots are unrolled on scalars; the other segments go through one ``lax.scan`` over the segments in order
-    (parents first), whose body composes a segment's DOFs padded to the largest count ``M`` (a padded slot is the
-    exact identity: ``exp`` of angle 0, displacement 0) and its parent's pose read from the carry ``(S, 12)``.
-    The loop body is compiled once: unrolled, XLA's CPU compiler copies each segment's chain from the root into
-    every fusion that reads it (≈ 27 copies of each sine for ``full25``), which made the compile time grow with
-    the square of the depth; the loop keeps the arithmetic of the unrolled form (same operations in the same
-    order: the results are identical), a few times smaller and at least as fast.
+    Two nested ``lax.scan``: over the segments in order (parents first; the carry holds every pose as a row
+    ``(R, t)`` of 12 scalars, and an identity row that the roots take as their parent), and within a segment over
+    its DOF slots, padded to the largest count ``M`` (carry: the segment's ``(R, t)``, starting from
+    ``(R_rest, o_s)``). Each slot applies ``t ← t + (R a_k) x_k`` if prismatic and ``R ← R exp(â_k x_k)``
+    (:func:`axis_angle9`) if revolute; the other operation gets value 0, which leaves ``R`` and ``t`` exactly as
+    they are (``exp`` of angle 0 is the identity, products with it exact), so the results equal the product
+    written out segment by segment. Written out, XLA's CPU compiler copied the chain from the root into every
+    fusion that reads a segment's entries (≈ 27 copies of each sine for ``full25``); the loop bodies are compiled
+    once and each value is computed once.
     """
     x = jnp.asarray(x)
-    S = topology.num_segments
     dt = x.dtype
-    roots = [s for s in range(S) if topology.parents[s] < 0]
-    if len(roots) + 1 >= S:  # nothing to loop over: unrolled
-        poses = [_local_transform(topology, s, rest_rotation, offset, dof_axis, x) for s in range(S)]
-        for s, p in enumerate(topology.parents):
-            if p >= 0:
-                (Rp, tp), (R, t) = poses[p], poses[s]
-                dt_ = matvec9(Rp, t)
-                poses[s] = (matmul9(Rp, R), tuple(tp[i] + dt_[i] for i in range(3)))
-        R_out = jnp.stack([jnp.stack(r) for r, _ in poses]).reshape(S, 3, 3)
-        return R_out, jnp.stack([jnp.stack(v) for _, v in poses])
-    pose = jnp.zeros((S, 12), dt)
-    for s in roots:
-        R, t = _local_transform(topology, s, rest_rotation, offset, dof_axis, x)
-        pose = pose.at[s].set(jnp.stack([*R, *t]).astype(dt))
-    tab = _child_table(topology)
-    any_rot, any_p = bool(tab.rotated.any()), tab.prismatic.any(axis=0)
-    any_r = tab.revolute.any(axis=0)
-    eye9 = jnp.eye(3, dtype=dt).reshape(9)
-    xs = {
-        "segment": tab.segment,
-        "parent": tab.parent,
-        "dof": tab.dof,
-        "revolute": tab.revolute,
-        "prismatic": tab.prismatic,
-        "axis": dof_axis[tab.dof],
-        "offset": offset[tab.segment],
+    S = topology.num_segments
+    dof, revolute, prismatic = _slot_table(topology)
+    rest = jnp.eye(3, dtype=dt).reshape(1, 9)
+    if any(topology.rest_rotated):
+        rotated = np.asarray(topology.rest_rotated)[:, None]
+        rest = jnp.where(rotated, jnp.asarray(rest_rotation, dt).reshape(S, 9), rest)
+    rows = {
+        "start": jnp.concatenate([jnp.broadcast_to(rest, (S, 9)), jnp.asarray(offset, dt)], axis=1),
+        "parent": np.asarray([p if p >= 0 else S for p in topology.parents], np.int32),
+        "axis": jnp.asarray(dof_axis, dt)[dof],
+        "dof": dof,
+        "revolute": revolute,
+        "prismatic": prismatic,
     }
-    if any_rot:
-        xs["rest"] = jnp.where(tab.rotated[:, None], rest_rotation[tab.segment].reshape(-1, 9), eye9)
+    any_prismatic = bool(prismatic.any())
 
-    def child(pose, row):
-        R: Rot9 | None = tuple(row["rest"][i] for i in range(9)) if any_rot else None
-        t: Vec3 = (row["offset"][0], row["offset"][1], row["offset"][2])
-        for j in range(tab.dof.shape[1]):
-            a = (row["axis"][j, 0], row["axis"][j, 1], row["axis"][j, 2])
-            xk = x[row["dof"][j]]
-            if any_p[j]:
-                d = a if R is None else matvec9(R, a)
-                xp = jnp.where(row["prismatic"][j], xk, jnp.zeros_like(xk))
-                t = tuple(t[i] + d[i] * xp for i in range(3))
-            if any_r[j]:
-                Rk = axis_angle9(a, jnp.where(row["revolute"][j], xk, jnp.zeros_like(xk)))
-                R = Rk if R is None else matmul9(R, Rk)
+    def slot(g, z):
+        R, t = tuple(g[i] for i in range(9)), tuple(g[9 + i] for i in range(3))
+        a = (z["axis"][0], z["axis"][1], z["axis"][2])
+        xk = x[z["dof"]]
+        zero = jnp.zeros_like(xk)
+        if any_prismatic:
+            d = matvec9(R, a)
+            xp = jnp.where(z["prismatic"], xk, zero)
+            t = tuple(t[i] + d[i] * xp for i in range(3))
+        R = matmul9(R, axis_angle9(a, jnp.where(z["revolute"], xk, zero)))
+        return jnp.stack([*R, *t]), None
+
+    def segment(pose, row):
+        slots = {k: row[k] for k in ("axis", "dof", "revolute", "prismatic")}
+        g, _ = jax.lax.scan(slot, row["start"], slots)
         gp = pose[row["parent"]]
         Rp, tp = tuple(gp[i] for i in range(9)), tuple(gp[9 + i] for i in range(3))
+        R, t = tuple(g[i] for i in range(9)), tuple(g[9 + i] for i in range(3))
         dv = matvec9(Rp, t)
-        t = tuple(tp[i] + dv[i] for i in range(3))
-        R = Rp if R is None else matmul9(Rp, R)
-        return pose.at[row["segment"]].set(jnp.stack([*R, *t])), None
+        g = jnp.stack([*matmul9(Rp, R), *(tp[i] + dv[i] for i in range(3))])
+        return pose.at[row["index"]].set(g), None
 
-    pose, _ = jax.lax.scan(child, pose, xs)
-    return pose[:, :9].reshape(S, 3, 3), pose[:, 9:]
+    identity = jnp.asarray([1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0], dt)
+    pose = jnp.zeros((S + 1, 12), dt).at[S].set(identity)
+    pose, _ = jax.lax.scan(segment, pose, {**rows, "index": np.arange(S, dtype=np.int32)})
+    return pose[:S, :9].reshape(S, 3, 3), pose[:S, 9:]
 
 
 #: At most this many runs of equal segment index: :func:`transform_points` uses static slices, beyond it a gather.
