@@ -319,6 +319,9 @@ def segment_poses(
 
 #: At most this many runs of equal segment index: :func:`transform_points` uses static slices, beyond it a gather.
 MAX_RUNS = 64
+#: :func:`transform_points` slices runs only when they hold at least this many points on average; shorter ones (a
+#: point a segment: joints, primitive end points) are gathered, the slices costing more program than they save.
+MIN_RUN_LENGTH = 2
 
 
 def segment_runs(segment_of_point: Sequence[int] | np.ndarray) -> list[tuple[int, int, int]]:
@@ -364,12 +367,13 @@ def transform_points(
     Returns:
       ``(..., P, 3)``, computed per coordinate over ``(..., P)`` arrays.
 
-    Points stored segment by segment (at most :data:`MAX_RUNS` runs, as flesh samples are) are moved one run at a
-    time with static slices (:func:`apply_by_runs`); other layouts gather each point's transform. The result passes
+    Points stored segment by segment (at most :data:`MAX_RUNS` runs of :data:`MIN_RUN_LENGTH` points or more on
+    average, as flesh samples are) are moved one run at a time with static slices (:func:`apply_by_runs`); other
+    layouts gather each point's transform (the same products in the same order). The result passes
     through ``lax.optimization_barrier`` (which XLA's CPU compiler drops, see :mod:`jaxmocap.likelihood.maps`).
     """
     runs = segment_runs(segment_of_point)
-    if 0 < len(runs) <= MAX_RUNS:
+    if 0 < len(runs) <= MAX_RUNS and runs[-1][1] >= MIN_RUN_LENGTH * len(runs):
         return jax.lax.optimization_barrier(jnp.stack(apply_by_runs(R, t, points, runs), -1))
     seg = np.asarray(segment_of_point, dtype=np.int32)
     Rp = R[..., seg, :, :]

@@ -165,3 +165,19 @@ def test_transform_points_matches_per_point_products():
     out = np.asarray(kinematics.transform_points(R, t, pts, seg))
     ref = np.einsum("npij,pj->npi", np.asarray(R)[:, seg], np.asarray(pts)) + np.asarray(t)[:, seg]
     np.testing.assert_allclose(out, ref, atol=1e-5)
+
+
+def test_transform_points_runs_and_gather_agree(monkeypatch):
+    """Long runs go through static slices, short ones through the per-point gather: the same products."""
+    rng = np.random.default_rng(6)
+    R = jnp.asarray(Rotation.random(5, random_state=7).as_matrix(), jnp.float32)[None].repeat(3, 0)
+    t = jnp.asarray(rng.normal(size=(3, 5, 3)), jnp.float32)
+    seg = np.repeat(np.arange(5), 3)
+    pts = jnp.asarray(rng.normal(size=(seg.size, 3)), jnp.float32)
+    assert len(kinematics.segment_runs(seg)) * kinematics.MIN_RUN_LENGTH <= seg.size  # the sliced path
+    sliced = np.asarray(kinematics.transform_points(R, t, pts, seg))
+    monkeypatch.setattr(kinematics, "MIN_RUN_LENGTH", seg.size + 1)  # the gather
+    gathered = np.asarray(kinematics.transform_points(R, t, pts, seg))
+    np.testing.assert_array_equal(sliced, gathered)
+    ref = np.einsum("npij,pj->npi", np.asarray(R)[:, seg], np.asarray(pts)) + np.asarray(t)[:, seg]
+    np.testing.assert_allclose(sliced, ref, atol=1e-5)
