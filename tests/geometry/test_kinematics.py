@@ -181,3 +181,20 @@ def test_transform_points_runs_and_gather_agree(monkeypatch):
     np.testing.assert_array_equal(sliced, gathered)
     ref = np.einsum("npij,pj->npi", np.asarray(R)[:, seg], np.asarray(pts)) + np.asarray(t)[:, seg]
     np.testing.assert_allclose(sliced, ref, atol=1e-5)
+
+
+@pytest.mark.parametrize("name", ["upper9", "full25", "parsec31"])
+def test_loop_and_written_out_fk_agree(name):
+    """The two forms of segment_poses (loops on the CPU, written out elsewhere) give the same numbers, rest
+    rotations (parsec31) and prismatic DOFs included."""
+    if name == "parsec31":
+        from jaxmocap.parsec.model import parsec31 as build
+    else:
+        build = getattr(body, name)
+    model = build()
+    X = model.rest_pose + 0.4 * jax.random.normal(jax.random.key(3), (64, model.num_dofs))
+    args = (model.topology, model.rest_rotation, model.offset, model.dof_axis)
+    forms = [kinematics._segment_poses_loop, kinematics._segment_poses_unrolled]
+    (R1, t1), (R2, t2) = (jax.jit(jax.vmap(lambda x, f=f: f(*args, x)))(X) for f in forms)
+    np.testing.assert_array_equal(np.asarray(R1), np.asarray(R2))
+    np.testing.assert_array_equal(np.asarray(t1), np.asarray(t2))
