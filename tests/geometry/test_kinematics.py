@@ -165,3 +165,36 @@ def test_transform_points_matches_per_point_products():
     out = np.asarray(kinematics.transform_points(R, t, pts, seg))
     ref = np.einsum("npij,pj->npi", np.asarray(R)[:, seg], np.asarray(pts)) + np.asarray(t)[:, seg]
     np.testing.assert_allclose(out, ref, atol=1e-5)
+
+
+def test_transform_points_runs_and_gather_agree(monkeypatch):
+    """Long runs go through static slices, short ones through the per-point gather: the same products."""
+    rng = np.random.default_rng(6)
+    R = jnp.asarray(Rotation.random(5, random_state=7).as_matrix(), jnp.float32)[None].repeat(3, 0)
+    t = jnp.asarray(rng.normal(size=(3, 5, 3)), jnp.float32)
+    seg = np.repeat(np.arange(5), 3)
+    pts = jnp.asarray(rng.normal(size=(seg.size, 3)), jnp.float32)
+    assert len(kinematics.segment_runs(seg)) * kinematics.MIN_RUN_LENGTH <= seg.size  # the sliced path
+    sliced = np.asarray(kinematics.transform_points(R, t, pts, seg))
+    monkeypatch.setattr(kinematics, "MIN_RUN_LENGTH", seg.size + 1)  # the gather
+    gathered = np.asarray(kinematics.transform_points(R, t, pts, seg))
+    np.testing.assert_array_equal(sliced, gathered)
+    ref = np.einsum("npij,pj->npi", np.asarray(R)[:, seg], np.asarray(pts)) + np.asarray(t)[:, seg]
+    np.testing.assert_allclose(sliced, ref, atol=1e-5)
+
+
+@pytest.mark.parametrize("name", ["upper9", "full25", "parsec31"])
+def test_loop_and_written_out_fk_agree(name):
+    """The two forms of segment_poses (loops on the CPU, written out elsewhere) give the same numbers, rest
+    rotations (parsec31) and prismatic DOFs included."""
+    if name == "parsec31":
+        from jaxmocap.parsec.model import parsec31 as build
+    else:
+        build = getattr(body, name)
+    model = build()
+    X = model.rest_pose + 0.4 * jax.random.normal(jax.random.key(3), (64, model.num_dofs))
+    args = (model.topology, model.rest_rotation, model.offset, model.dof_axis)
+    forms = [kinematics._segment_poses_loop, kinematics._segment_poses_unrolled]
+    (R1, t1), (R2, t2) = (jax.jit(jax.vmap(lambda x, f=f: f(*args, x)))(X) for f in forms)
+    np.testing.assert_array_equal(np.asarray(R1), np.asarray(R2))
+    np.testing.assert_array_equal(np.asarray(t1), np.asarray(t2))
