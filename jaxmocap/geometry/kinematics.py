@@ -278,11 +278,7 @@ def segment_poses(
 
 
 def _segment_poses_unrolled(
-    topology: Topology,
-    rest_rotation: jnp.ndarray,
-    offset: jnp.ndarray,
-    dof_axis: jnp.ndarray,
-    x: jnp.ndarray,
+    topology: Topology, rest_rotation, offset, dof_axis, x
 ) -> tuple[jnp.ndarray, jnp.ndarray]:
     """:func:`segment_poses` written out per segment on scalars (9-tuples): one long expression per output entry.
     XLA's GPU compiler fuses it into one kernel; its CPU compiler copies each segment's chain from the root into
@@ -319,11 +315,7 @@ def _segment_poses_unrolled(
 
 
 def _segment_poses_loop(
-    topology: Topology,
-    rest_rotation: jnp.ndarray,
-    offset: jnp.ndarray,
-    dof_axis: jnp.ndarray,
-    x: jnp.ndarray,
+    topology: Topology, rest_rotation, offset, dof_axis, x
 ) -> tuple[jnp.ndarray, jnp.ndarray]:
     """:func:`segment_poses` as loops (the CPU form).
 
