@@ -198,6 +198,19 @@ SCRIPTS: dict[str, Script] = {
         "perf/compile_partitions.py",
         writes=("compile_partitions.md",),
     ),
+    "compile_time": Script(
+        "First-frame latency of jaxmocap track per model and filter family",
+        "perf/compile_time.py",
+        "--out benchmarks/results/compile_time.md",
+        writes=("compile_time.md",),
+        slow=True,
+    ),
+    "compile_programs": Script(
+        "Compile time of the tracker's programs per model",
+        "perf/compile_time.py",
+        "--programs --isolate --out benchmarks/results/compile_programs.md",
+        writes=("compile_programs.md",),
+    ),
     "profile_likelihood": Script(
         "Where the compiled likelihood spends its time", "perf/profile_likelihood.py"
     ),

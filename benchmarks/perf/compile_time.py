@@ -1,22 +1,28 @@
-"""XLA compile time of the hot programs, per body model: forward kinematics, the tracker's likelihood, one APF step.
+"""Compile time: the hot programs per body model, and the first-frame latency of ``jaxmocap track`` per filter family.
 
-For each model (``upper9``, ``upper14``, ``full25``) and piece:
+Two tables, both with the persistent compilation cache off (``JAXMOCAP_CACHE_DIR=off``):
 
-* ``fk``: ``body.segment_poses`` vmapped over the particles;
-* ``likelihood``: the log-likelihood the tracker builds with its default cues
-  (:func:`jaxmocap.tracking.tracker.default_cues`: ``foreground``, ``edge_distance`` and the ``coverage`` term,
-  plus ``depth`` on ``full25`` with ``--depth``) over all particles of a layer;
-* ``apf``: one frame of the annealed particle filter (:func:`jaxmocap.tracking.tracker.make_filter`, default
-  particles and layers), the program ``jaxmocap track`` compiles before its first frame;
+1. **Programs** (``--programs``): for each body model, the three programs the tracker compiles, built by the
+   tracker's own setup (:class:`jaxmocap.tracking.setup.TrackSetup`) on a synthetic stereo sequence of the bundled
+   CMU walk (320×240, foreground, edge distance, coverage and, for ``full25``, depth):
 
-the time to trace and lower (``jit(...).lower``), to compile the lowered module (``.compile()``, XLA), and the
-size of the lowered module in lines of StableHLO text (the CPU compiler's time grows with it). The persistent
-compilation cache is off, each program is new to the process (``--isolate``: each row in a fresh interpreter, as
-``jaxmocap track`` sees it). Scene: two 640×480 views 30 cm apart, 3.5 m from the subject; synthetic maps (the
-compile time does not depend on their content). Prints a markdown table.
+   * ``fk``: the forward kinematics vmapped over 8192 particles;
+   * ``likelihood``: the tracker's log-likelihood over 8192 particles;
+   * ``apf``: one frame of the annealed particle filter with the default particles and layers.
 
-    python benchmarks/perf/compile_time.py [--models upper9 upper14 full25] [--pieces fk likelihood apf]
-                                           [--particles 8192] [--depth] [--isolate] [--quick]
+   For each: the time to trace and lower (``jit(...).lower``), to compile (``.compile()``, XLA) and the size of
+   the lowered module in lines of StableHLO text (the CPU compiler's time grows with it). ``--isolate`` runs each
+   row in a fresh interpreter, as ``jaxmocap track`` sees it.
+
+2. **First frame** (default): the wall time from process start to the end of a one-frame ``jaxmocap track`` run
+   (import, features, initialisation, compilation of the filter step, one step, outputs) for every model × filter
+   family: ``apf``, ``iapf``, ``partitioned`` with equal counts and with unequal counts (Li & Kulić's
+   1000,200,350,… on ``full25``), ``hierarchical``, ``hybrid``. With ``--before DIR`` (another checkout of the
+   project, e.g. a ``git worktree`` of an older commit) each configuration is run with that checkout and with this
+   one in alternation, so that both see the same machine load; the table gives both times and their ratio.
+
+    python benchmarks/perf/compile_time.py [--models upper9 upper14 full25] [--filters apf iapf ...]
+                                           [--before DIR] [--programs [--isolate]] [--quick]
 """
 
 from __future__ import annotations
@@ -24,111 +30,83 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import pathlib
 import subprocess
 import sys
+import tempfile
 import time
 
-import jax
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 
-jax.config.update("jax_enable_compilation_cache", False)
-
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-
-from jaxmocap.features.observation import make_observation  # noqa: E402
-from jaxmocap.geometry import body, camera  # noqa: E402
-from jaxmocap.likelihood import compose as lk  # noqa: E402
-from jaxmocap.synth.generate import look_at  # noqa: E402
-from jaxmocap.tracking import tracker as tr  # noqa: E402
+import common  # noqa: E402
 
 MODELS = ("upper9", "upper14", "full25")
 PIECES = ("fk", "likelihood", "apf")
-W, H = 640, 480
+#: filter family -> (filter name, particle-count rule: None = the default, "unequal" = one count per partition)
+FAMILIES = {
+    "apf": ("apf", None),
+    "iapf": ("iapf", None),
+    "partitioned": ("partitioned", None),
+    "partitioned-unequal": ("partitioned", "unequal"),
+    "hierarchical": ("hierarchical", None),
+    "hybrid": ("hybrid", None),
+}
+ROOT = pathlib.Path(__file__).resolve().parents[2]
 
 
-def stereo_rig() -> camera.Rig:
-    """Two cameras 30 cm apart, 1.3 m high, 3.5 m from the subject, 640×480."""
-    Rs, ts = zip(*[look_at(np.array([3.5, y, 1.3]), [0.0, 0.0, 1.0]) for y in (-0.15, 0.15)], strict=True)
-    K = np.array([[500.0, 0.0, 319.5], [0.0, 500.0, 239.5], [0.0, 0.0, 1.0]])
-    return camera.from_opencv(
-        np.stack([K, K]), np.zeros((2, 5)), np.stack(Rs), np.stack(ts), image_size=[(W, H)] * 2
+def make_sequence(folder: pathlib.Path) -> pathlib.Path:
+    """A short synthetic stereo sequence (depth included) of the bundled CMU walk, rendered once per run."""
+    from jaxmocap.synth import generate as synth
+
+    out = folder / "seq"
+    synth.synthesize(
+        "demo", out, rig="stereo", frames="0:16", fps=30.0, size="320x240", seed=0, overwrite=True
     )
+    return out
 
 
-def observation(rig: camera.Rig, depth: bool, samples: int = 128) -> tr.TrackObservation:
-    """Blocky random maps (foreground, edge distances, depth) and silhouette samples, as the tracker's frame."""
-    rng = np.random.default_rng(0)
-    small = rng.uniform(0.0, 1.0, (2, H // 16 + 1, W // 16 + 1)).astype(np.float32)
-    field = np.repeat(np.repeat(small, 16, 1), 16, 2)[:, :H, :W]
-    fg = (field > 0.3).astype(np.float32)
-    obs = make_observation(
-        rig,
-        foreground=fg,
-        edges=field,
-        edge_dt=40.0 * field,
-        depth=np.where(fg > 0, 2.5 + field, 0.0).astype(np.float32) if depth else None,
-    )
-    uv = np.stack([rng.uniform((0, 0), (W - 1, H - 1), (samples, 2)) for _ in range(2)]).astype(np.float32)
-    w = np.ones((2, samples), np.float32)
-    return tr.TrackObservation(obs, jnp.asarray(uv), jnp.asarray(w), jnp.zeros(0), jnp.asarray(False))
+def unequal_counts(model_name: str) -> str:
+    """Li & Kulić's counts for ``full25`` (torso 1000, head 200, arms and legs 350); for the upper bodies the same
+    rule (1000 for the torso, 200 for the head, 350 for every other partition)."""
+    from jaxmocap.filters.factory import partition_groups
+    from jaxmocap.geometry import body
+
+    groups = partition_groups(body.build(model_name))
+    return ",".join(["1000", "200"] + ["350"] * (len(groups) - 2))
 
 
-def tracker_loglik(model: body.BodyModel, rig: camera.Rig, depth: bool, layers: int):
-    """``loglik(X, tobs, layer) -> (N,)`` of the tracker with its default cues (image cues through
-    :class:`jaxmocap.likelihood.compose.Likelihood`, the coverage term through
-    :func:`jaxmocap.tracking.tracker.coverage_energy`, the APF schedule)."""
-    cues = tr.default_cues(model.name, depth, False)
-    names = [n for n, _ in cues]
-    table = lk.schedule_preset(
-        "apf", ["silhouette_divergence" if n == "coverage" else n for n in names], layers
-    )
-    image = [(i, n, w) for i, (n, w) in enumerate(cues) if n not in tr.TRACKER_CUES]
-    lik = lk.Likelihood.create(
-        model,
-        rig,
-        [lk.Cue(n, w) for _, n, w in image],
-        num_layers=layers,
-        schedule=table[:, [i for i, _, _ in image]],
-    )
-    cov = [(i, w) for i, (n, w) in enumerate(cues) if n == "coverage"]
-    cov_lam = jnp.asarray(table[:, cov[0][0]] * cov[0][1], jnp.float32)
-    rj = rig.to_jax(jnp.float32)
-    d_max = jnp.asarray([max(1.0, tr.COVERAGE_DMAX * w) for w, _ in rig.image_size], jnp.float32)
-
-    def loglik(X, tobs, layer):
-        l = jnp.clip(jnp.asarray(getattr(layer, "index", layer)), 0, layers - 1)
-        ll = lik.batch(X, tobs.image, l)
-        e = jax.vmap(lambda x: jnp.sum(tr.coverage_energy(model, rj, x, tobs.cover_uv, tobs.cover_w, d_max)))(
-            X
-        )
-        ll = ll - cov_lam[l] * e
-        return jnp.where(jnp.isfinite(ll), ll, -jnp.inf)
-
-    return loglik
+# ---------------------------------------------------------------------------------------------------------------
+# Programs
 
 
-def program(model_name: str, piece: str, particles: int, depth: bool):
-    """``(jitted function, arguments, particles)`` of one piece."""
-    model = body.build(model_name)
-    rig = stereo_rig()
-    layers = tr.default_layers("apf")[0]
-    n = particles if piece != "apf" else tr.default_particles(model_name, "apf")
+def program(model_name: str, piece: str, seq: pathlib.Path, particles: int = 8192):
+    """``(jitted function, arguments, particles)`` of one piece, built by the tracker's setup."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from jaxmocap.geometry import body
+    from jaxmocap.io.sources import SequenceSource
+    from jaxmocap.tracking.options import TrackOptions
+    from jaxmocap.tracking.setup import TrackSetup
+
+    setup = TrackSetup(SequenceSource(seq), TrackOptions(model=model_name, filter="apf"))
+    model = setup.model
     x0 = np.asarray(model.rest_pose, np.float32)
+    n = particles if piece != "apf" else int(setup.num_particles)
     X = jnp.asarray(x0 + 0.05 * np.random.default_rng(1).normal(size=(n, model.num_dofs)), jnp.float32)
     if piece == "fk":
         return jax.jit(jax.vmap(lambda x: body.segment_poses(model, x))), (X,), n
-    tobs = observation(rig, depth)._replace(center=jnp.zeros(model.num_dofs, jnp.float32))
-    loglik = tracker_loglik(model, rig, depth and model_name == "full25", layers)
+    tobs = setup.observe(setup.frames[0])[0]
     if piece == "likelihood":
-        return jax.jit(loglik), (X, tobs, 0), n
-    std = tr.diffusion_std(model)
-    filt = tr.make_filter("apf", loglik, model, std, n, layers, prior_mean=x0, prior_std=3.0 * std)
+        return jax.jit(setup.loglik), (X, tobs, 0), n
+    filt = setup.make_filter(x0)
     state = filt.init(jax.random.key(0), jnp.asarray(x0))
     return jax.jit(filt.step), (jax.random.key(1), state, tobs), n
 
 
-def measure(model_name: str, piece: str, particles: int, depth: bool) -> dict:
-    f, args, n = program(model_name, piece, particles, depth)
+def measure(model_name: str, piece: str, seq: pathlib.Path) -> dict:
+    f, args, n = program(model_name, piece, seq)
     t0 = time.perf_counter()
     lowered = f.lower(*args)
     t1 = time.perf_counter()
@@ -144,45 +122,112 @@ def measure(model_name: str, piece: str, particles: int, depth: bool) -> dict:
     )
 
 
-def _isolated(model_name: str, piece: str, particles: int, depth: bool) -> dict:
+def _isolated(model_name: str, piece: str, seq: pathlib.Path) -> dict:
     """:func:`measure` in a fresh interpreter (no compiled program or trace shared with earlier rows)."""
-    cmd = [sys.executable, __file__, "--row", model_name, piece, str(particles)] + (
-        ["--depth"] if depth else []
-    )
-    out = subprocess.run(cmd, check=True, capture_output=True, text=True, env={**os.environ})
+    cmd = [sys.executable, __file__, "--row", model_name, piece, str(seq)]
+    out = subprocess.run(cmd, check=True, capture_output=True, text=True, env=_env(ROOT))
     return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def programs_table(models, seq: pathlib.Path, isolate: bool) -> list[str]:
+    lines = ["| model | piece | particles | lower s | compile s | HLO lines |", "|---|---|---|---|---|---|"]
+    for m in models:
+        for p in PIECES:
+            r = (_isolated if isolate else measure)(m, p, seq)
+            lines.append(
+                f"| {r['model']} | {r['piece']} | {r['particles']} | {r['lower_s']:.2f} | {r['compile_s']:.2f} "
+                f"| {r['hlo_lines']} |"
+            )
+            print(lines[-1], flush=True)
+    return lines
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# First frame
+
+
+def _env(checkout: pathlib.Path) -> dict:
+    env = dict(os.environ, JAXMOCAP_CACHE_DIR="off", JAX_PLATFORMS="cpu")
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    env["PYTHONPATH"] = str(checkout) + os.pathsep + env.get("PYTHONPATH", "")
+    return env
+
+
+def first_frame_seconds(
+    checkout: pathlib.Path, seq: pathlib.Path, model: str, family: str, out: pathlib.Path
+):
+    """Wall time of a one-frame ``jaxmocap track`` in a new process with ``checkout``'s package."""
+    name, rule = FAMILIES[family]
+    cmd = [sys.executable, "-m", "jaxmocap.cli", "track", str(seq), "--out", str(out), "--model", model]
+    cmd += ["--filter", name, "--frames", "0:1", "--quiet", "--overwrite"]
+    if rule == "unequal":
+        cmd += ["--particles", unequal_counts(model)]
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=_env(checkout), cwd=str(out.parent))
+    seconds = time.perf_counter() - t0
+    if proc.returncode != 0:
+        tail = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or ["?"]
+        return None, tail[0]
+    return seconds, None
+
+
+def first_frame_table(models, families, seq, before: pathlib.Path | None, work: pathlib.Path) -> list[str]:
+    head = "| model | filter | first frame s |"
+    rule = "|---|---|---|"
+    if before is not None:
+        head, rule = "| model | filter | before s | after s | after / before |", "|---|---|---|---|---|"
+    lines = [head, rule]
+    for m in models:
+        for fam in families:
+            out = work / f"run_{m}_{fam}"
+            after, why = first_frame_seconds(ROOT, seq, m, fam, out)
+            if before is None:
+                cell = f"{after:.1f}" if after is not None else f"failed: {why}"
+                lines.append(f"| {m} | {fam} | {cell} |")
+            else:
+                prev, why_b = first_frame_seconds(before, seq, m, fam, out)
+                a = f"{after:.1f}" if after is not None else f"failed: {why}"
+                b = f"{prev:.1f}" if prev is not None else f"failed: {why_b}"
+                r = f"{after / prev:.2f}" if after is not None and prev is not None else "–"
+                lines.append(f"| {m} | {fam} | {b} | {a} | {r} |")
+            print(lines[-1], flush=True)
+    return lines
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--models", nargs="*", default=list(MODELS), choices=MODELS)
-    ap.add_argument("--pieces", nargs="*", default=list(PIECES), choices=PIECES)
-    ap.add_argument(
-        "--particles", type=int, default=8192, help="particles of fk and likelihood (default 8192)"
-    )
-    ap.add_argument(
-        "--depth", action="store_true", help="the input has depth maps (full25 adds the depth cue)"
-    )
-    ap.add_argument("--isolate", action="store_true", help="each row in a fresh interpreter")
-    ap.add_argument("--quick", action="store_true", help="upper9 only, 256 particles (smoke test)")
+    ap.add_argument("--filters", nargs="*", default=list(FAMILIES), choices=list(FAMILIES))
+    ap.add_argument("--before", type=pathlib.Path, help="another checkout to run side by side (first frame)")
+    ap.add_argument("--programs", action="store_true", help="the programs table instead of the first frame")
+    ap.add_argument("--isolate", action="store_true", help="programs: each row in a fresh interpreter")
+    ap.add_argument("--quick", action="store_true", help="upper9 with the APF only (a smoke test)")
+    ap.add_argument("--out", type=pathlib.Path, help="write the table (markdown) here as well")
     ap.add_argument("--row", nargs=3, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
+    os.environ["JAXMOCAP_CACHE_DIR"] = "off"
+    os.environ.pop("JAX_COMPILATION_CACHE_DIR", None)
     if a.row:
-        print(json.dumps(measure(a.row[0], a.row[1], int(a.row[2]), a.depth)))
+        print(json.dumps(measure(a.row[0], a.row[1], pathlib.Path(a.row[2]))))
         return
     if a.quick:
-        a.models, a.particles = ["upper9"], 256
-    print(f"jax {jax.__version__}, {jax.devices()[0].platform}, load average {os.getloadavg()[0]:.2f}")
-    print("| model | piece | particles | lower s | compile s | HLO lines |\n|---|---|---|---|---|---|")
-    for m in a.models:
-        for p in a.pieces:
-            r = (_isolated if a.isolate else measure)(m, p, a.particles, a.depth)
-            print(
-                f"| {r['model']} | {r['piece']} | {r['particles']} | {r['lower_s']:.2f} | {r['compile_s']:.2f} | "
-                f"{r['hlo_lines']} |",
-                flush=True,
-            )
-    print(f"load average after: {os.getloadavg()[0]:.2f}")
+        a.models, a.filters = ["upper9"], ["apf"]
+    with tempfile.TemporaryDirectory(prefix="jaxmocap-compile-") as tmp:
+        work = pathlib.Path(tmp)
+        seq = make_sequence(work)
+        load0 = os.getloadavg()[0]
+        if a.programs:
+            title = "Compile time of the tracker's programs (cache off)"
+            lines = programs_table(a.models, seq, a.isolate)
+        else:
+            title = "First-frame latency of `jaxmocap track` (process start to one tracked frame, cache off)"
+            lines = first_frame_table(a.models, a.filters, seq, a.before, work)
+        note = f"load average {load0:.2f} before, {os.getloadavg()[0]:.2f} after; {common.stamp()}"
+        text = "\n".join([f"### {title}", "", *lines, "", note, ""])
+        print(note)
+        if a.out:
+            args = sys.argv[1:] if argv is None else list(argv)
+            common.write_result(a.out, text, " ".join(["python", common.script(__file__), *map(str, args)]))
 
 
 if __name__ == "__main__":
