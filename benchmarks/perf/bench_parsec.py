@@ -49,8 +49,8 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 from reference.numpy_baselines import np_loglik  # noqa: E402
 
+from jaxmocap import parsec  # noqa: E402
 from jaxmocap.parsec import likelihood as pl  # noqa: E402
-from jaxmocap.parsec import model as parsec  # noqa: E402
 
 
 def _png(p):

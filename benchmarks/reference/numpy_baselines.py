@@ -20,8 +20,8 @@ from scenes import H, W
 
 from jaxmocap import parsec
 from jaxmocap.geometry import camera, flesh
+from jaxmocap.likelihood import colour_cues, cues
 from jaxmocap.likelihood import compose as L
-from jaxmocap.likelihood import cues
 from jaxmocap.parsec import likelihood as pl
 
 F = np.float32
@@ -177,7 +177,7 @@ class NumpyLikelihood:
         if obs.has("rgb"):
             c8 = np.round(np.clip(np.asarray(obs.rgb), 0, 1) * 255).astype(np.int32)
             self.rgb = (c8.reshape(-1, 3) / F(255)).astype(F)
-            self.bins = np.asarray(cues._colour_bins(jnp.asarray(c8), 4, "rgb")).reshape(-1)
+            self.bins = np.asarray(colour_cues._colour_bins(jnp.asarray(c8), 4, "rgb")).reshape(-1)
         self.obs = obs
         self.refs = lik.references
 

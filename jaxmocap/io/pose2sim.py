@@ -5,7 +5,7 @@ Layout of a Pose2Sim trial (the ``Demo_SinglePerson`` demo):
 
 * ``videos/camNN.mp4`` (or, for small copies, ``images/camNN/NNNN.jpg``), one per camera, frame ``t`` of every
   camera the same instant;
-* a Pose2Sim calibration TOML (OpenCV convention, :func:`jaxmocap.geometry.calibration.load_pose2sim_toml`);
+* a Pose2Sim calibration TOML (OpenCV convention, :func:`jaxmocap.io.calibration.load_pose2sim_toml`);
 * ``camNN_json/camNN.NNNN.json``: OpenPose BODY_25B detections of every person in view;
 * a ``.trc`` file of the 3D keypoints Pose2Sim triangulated from them (y-up, see :mod:`jaxmocap.io.trc`).
 
@@ -35,6 +35,7 @@ import numpy as np
 from jaxmocap.errors import MocapInputError
 from jaxmocap.geometry import body as body_mod
 from jaxmocap.geometry import camera
+from jaxmocap.io.calibration import load_calibration
 from jaxmocap.io.sources import BadFrame, FrameData
 from jaxmocap.io.trc import load_trc
 
@@ -203,7 +204,7 @@ class Pose2SimSource:
     ):
         if (videos is None) == (image_dirs is None):
             raise MocapInputError(None, "give either videos or image folders")
-        full = calibration.load_calibration(calibration)
+        full = load_calibration(calibration)
         cams = list(range(full.num_views)) if cameras is None else [int(c) for c in cameras]
         inputs = list(videos if videos is not None else image_dirs)
         if len(inputs) != full.num_views:

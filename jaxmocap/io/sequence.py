@@ -5,7 +5,7 @@ Layout of a sequence folder (``T`` frames, ``V`` cameras; every image is a PNG n
 
 .. code-block:: text
 
-    calibration.toml            canonical Pose2Sim-layout TOML (jaxmocap.geometry.calibration.save_calibration), metres, z up
+    calibration.toml            canonical Pose2Sim-layout TOML (jaxmocap.io.calibration.save_calibration), metres, z up
     meta.json                   {"frames": T, "fps": F, ...}: the frame count is the one authority
     views/<camera name>/rgb/    8-bit colour images (required)
     views/<camera name>/mask/   8-bit foreground masks, 255 = person, 0 = background (optional)

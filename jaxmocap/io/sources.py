@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from jaxmocap.errors import MocapInputError
+from jaxmocap.io.calibration import load_calibration
 
 __all__ = ["BadFrame", "FrameData", "SequenceSource", "VideoSource"]
 
@@ -140,7 +141,7 @@ class VideoSource:
         calibration = pathlib.Path(calibration)
         if not calibration.exists():
             raise MocapInputError(calibration, "no such calibration file")
-        rig = calibration.load_calibration(calibration)
+        rig = load_calibration(calibration)
         if rig.num_views != len(self.videos):
             raise MocapInputError(
                 calibration,

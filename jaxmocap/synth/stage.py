@@ -12,7 +12,7 @@ horizontal) and ``l̂ = ẑ × f̂`` its left:
   mild radial distortion ``k₁ = −0.05``;
 * ``ring4``: four cameras at azimuths 45°, 135°, 225°, 315° from ``f̂`` on a 3.5 m radius circle at 2.5 m
   height, looking at ``c + 0.9 ẑ`` (HumanEva / PARSEC-like);
-* a calibration file (:func:`jaxmocap.geometry.calibration.load_calibration`): the cameras as calibrated; the clip is shifted
+* a calibration file (:func:`jaxmocap.io.calibration.load_calibration`): the cameras as calibrated; the clip is shifted
   horizontally so that ``c`` lies below the point nearest to all optical axes (:func:`place_motion`; the shift
   is in ``meta.json`` as ``world_offset``, and the ground truth is in the calibration's world).
 

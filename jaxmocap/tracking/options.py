@@ -62,7 +62,7 @@ def build_model(
     name = name or file_model or "full25"
     if name not in MODELS:
         raise ValueError(f"unknown model {name!r}; choose one of {', '.join(MODELS)}")
-    if name not in body_mod.PRESETS:
+    if name not in body_mod.preset_names():
         raise ValueError(f"body model {name!r} is not registered: import jaxmocap.parsec (its wing) first")
     if file_model is not None and (file_model == "parsec31") != (name == "parsec31"):
         dims = {}  # the dimensions of PARSEC's body and of the other presets have nothing in common
