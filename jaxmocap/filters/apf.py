@@ -142,7 +142,9 @@ class APF(base.FilterBase):
         return State(X, log_w, estimate), Info(estimate, best, all_stats, recovered)
 
 
-base.register_filter(APF, ("diffusion_std", "lower", "upper", "prior_mean", "prior_std", "detection_std"))
+base.register_filter(
+    APF, ("diffusion_std", "lower", "upper", "prior_mean", "prior_std", "detection_std", "schedule")
+)
 
 
 def weigh_layer(filt, key, X, log_corr, observation, layer, beta_prev, surv_prev, previous_estimate):

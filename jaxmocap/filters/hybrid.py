@@ -304,4 +304,4 @@ class HybridAPF(base.FilterBase):
         return points[jnp.argmax(values)]
 
 
-base.register_filter(HybridAPF, ("diffusion_std", "lower", "upper"))
+base.register_filter(HybridAPF, ("diffusion_std", "lower", "upper", "schedule"))

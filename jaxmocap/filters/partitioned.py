@@ -210,4 +210,4 @@ def hierarchical(
     return Partitioned(loglik_batch, diffusion_std, groups, counts, schedule=schedule, **kw)
 
 
-base.register_filter(Partitioned, ("diffusion_std", "lower", "upper"))
+base.register_filter(Partitioned, ("diffusion_std", "lower", "upper", "schedule"))
