@@ -2,7 +2,9 @@
 
 :class:`TrackingLoop` drives a setup (:class:`jaxmocap.tracking.setup.TrackSetup` or PARSEC's): per frame, the key
 is ``fold_in(key(seed), frame)`` (never carried), so that a resumed run reproduces an uninterrupted one; a damped
-constant-velocity prediction of the root translation, the filter step (jitted **once**: ``trace_count`` stays 1),
+constant-velocity prediction of the root translation, the filter step (jitted **once**, with the filter as an
+argument, so that its data — diffusion std, schedule values, the likelihood's cue weights and λ — are not constants
+of the program: ``trace_count`` stays 1),
 track-loss detection and re-initialisation, and incremental outputs (:mod:`jaxmocap.io.export`) with a resume
 checkpoint (``resume.npz``) after each frame.
 
@@ -98,11 +100,14 @@ class TrackingLoop:
     def _make_filter(self, x0: np.ndarray):
         self.filter = self.setup.make_filter(x0)
 
-        def step(key, state, tobs):
+        def step(filt, key, state, tobs):
             self.trace_count += 1
-            return self.filter.step(key, state, tobs)
+            return filt.step(key, state, tobs)
 
-        self._step = jax.jit(step)
+        # the filter (a pytree: its arrays, schedule values and likelihood leaves are data) is an argument, not a
+        # constant of the program: a filter that differs only in data reuses the compiled step
+        jitted = jax.jit(step)
+        self._step = lambda key, state, tobs: jitted(self.filter, key, state, tobs)
 
     def _key(self, t: int, purpose: int = 0):
         k = jax.random.fold_in(jax.random.key(int(self.o.seed)), int(t))
