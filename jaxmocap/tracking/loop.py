@@ -106,8 +106,7 @@ class TrackingLoop:
 
         # the filter (a pytree: its arrays, schedule values and likelihood leaves are data) is an argument, not a
         # constant of the program: a filter that differs only in data reuses the compiled step
-        jitted = jax.jit(step)
-        self._step = lambda key, state, tobs: jitted(self.filter, key, state, tobs)
+        self._step = jax.jit(step)
 
     def _key(self, t: int, purpose: int = 0):
         k = jax.random.fold_in(jax.random.key(int(self.o.seed)), int(t))
@@ -229,7 +228,7 @@ class TrackingLoop:
                 if len(hist) == 2 and hist[0][0] == t - 2 and hist[1][0] == t - 1 and setup.velocity > 0:
                     v = np.where(trans, hist[1][1] - hist[0][1], 0.0) * setup.velocity
                     state = state._replace(particles=state.particles + jnp.asarray(v, dt))
-                state, info = self._step(self._key(t), state, tobs)
+                state, info = self._step(self.filter, self._key(t), state, tobs)
                 # prepare the next frame on the host while the step runs
                 pending = self._observe(frames[i + 1]) if i + 1 < len(frames) else None
                 info = jax.device_get(info)

@@ -3,6 +3,7 @@ diffusion std, the likelihood's λ schedule and cue weights are pytree leaves of
 holds); particle counts, the number of layers and the cues are structure, and a new value of them compiles anew."""
 
 import dataclasses
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -15,6 +16,7 @@ from jaxmocap.filters.annealing import Schedule
 from jaxmocap.geometry import body, camera
 from jaxmocap.likelihood import compose as L
 from jaxmocap.synth.generate import look_at
+from jaxmocap.tracking.setup import observation_loglik
 
 D = 4
 TARGET = jnp.asarray([0.3, -0.2, 0.5, 0.1])
@@ -187,3 +189,54 @@ def test_filter_with_pytree_likelihood_does_not_retrace(two_cues):
     f8 = dataclasses.replace(f, num_particles=8)
     run(f8, jax.random.key(1), f8.init(jax.random.key(0), model.rest_pose), obs)
     assert len(traces) == 2
+
+
+class _TrackObs(NamedTuple):
+    image: object
+
+
+def test_tracker_likelihood_parameters_are_data(two_cues):
+    """The tracker's likelihood (:func:`observation_loglik`) in a filter: new cue weights or λ reuse the step (its
+    geometry stays a constant of the program); a new likelihood geometry is another program."""
+    model, lik, obs = two_cues
+    traces = []
+
+    @jax.jit
+    def run(filt, key, state, observation):
+        traces.append(1)
+        return filt.step(key, state, observation)
+
+    ol = observation_loglik(lik, num_layers=2)
+    f = APF(ol, jnp.full(model.num_dofs, 0.02), 16, Schedule.fixed((0.5, 1.0), (1.0, 0.5)))
+    state = f.init(jax.random.key(0), model.rest_pose)
+    tobs = _TrackObs(obs)
+    s0, _ = run(f, jax.random.key(1), state, tobs)
+    lik2 = dataclasses.replace(lik, cue_weights=jnp.asarray([3.0, 0.5]), schedule=0.5 * lik.schedule)
+    s1, _ = run(
+        dataclasses.replace(f, loglik_batch=dataclasses.replace(ol, lik=lik2)), jax.random.key(1), state, tobs
+    )
+    assert len(traces) == 1
+    assert not np.array_equal(np.asarray(s0.log_weights), np.asarray(s1.log_weights))
+    # the same parameters give the same result as a likelihood with every leaf traced
+    s2, _ = run(
+        dataclasses.replace(f, loglik_batch=jax.tree_util.Partial(_lik_batch_image, lik2)),
+        jax.random.key(1),
+        state,
+        tobs,
+    )
+    np.testing.assert_allclose(np.asarray(s1.log_weights), np.asarray(s2.log_weights), rtol=1e-5, atol=1e-5)
+    lik3 = L.Likelihood.create(
+        model, lik.rig, [L.Cue("foreground", 1.0), L.Cue("edges", 2.0)], num_layers=2, surface_points=60
+    )
+    run(
+        dataclasses.replace(f, loglik_batch=observation_loglik(lik3, num_layers=2)),
+        jax.random.key(1),
+        state,
+        tobs,
+    )
+    assert len(traces) == 3  # the Partial above, then another geometry (new arrays held as constants)
+
+
+def _lik_batch_image(lik, X, tobs, layer):
+    ll = lik.batch(X, tobs.image, jnp.clip(layer.index, 0, 1))
+    return jnp.where(jnp.isfinite(ll), ll, -jnp.inf)
