@@ -88,7 +88,7 @@ class Likelihood:
     """A composed likelihood (see the module docstring). Build it with :meth:`create`.
 
     Leaves: ``model``, ``rig``, ``surface`` (flesh points), ``view_weights (V,)``, ``schedule (L, C, V)``,
-    ``cue_weights (C,)`` (``k_c``; None: the weights of ``cues``), ``references`` (per cue: None or the reference
+    ``cue_weights (C,)`` (``k_c``; :meth:`create` copies the weights of ``cues``), ``references`` (per cue: None or the reference
     arrays of :meth:`with_references`).
     Static: ``cues`` (tuple of :class:`Cue`: names and parameters), ``contour_points`` (per silhouette line),
     ``chunk_size``. A likelihood that differs from another only in its leaves (weights, λ, references) is the same
@@ -374,12 +374,16 @@ class Likelihood:
         return self._energies_from_pose(self.pose_stage(x), obs, self.prepare(obs) if aux is None else aux)
 
     def _energies_from_pose(self, pose: dict, obs: Observation, aux: tuple) -> jnp.ndarray:
+        if (
+            self.cue_weights is None
+        ):  # the cues' own weights are not part of the structure (Cue: compare=False)
+            raise ValueError("a Likelihood needs cue_weights (C,): build it with Likelihood.create")
         g = self.geometry_from_pose(pose, obs.image_shape)
         V = self.rig.num_views
         rows = []
         for c, cue in enumerate(self.cues):
             e = cue.spec.energy(g, obs, self._context(c, aux[c]))
-            k = cue.weight if self.cue_weights is None else self.cue_weights[c]
+            k = self.cue_weights[c]
             if cue.spec.per_view:
                 rows.append(k * self.view_weights * e)
             else:
