@@ -58,7 +58,13 @@ def frame_range(spec: str | None, num_frames: int) -> list[int]:
 
 
 def observation_loglik(
-    lik: lk.Likelihood | None, coverage_lambda=None, d_max=None, num_layers: int = 1, model=None, rig=None
+    lik: lk.Likelihood | None,
+    coverage_lambda=None,
+    d_max=None,
+    num_layers: int = 1,
+    model=None,
+    rig=None,
+    params_data: bool = True,
 ) -> ObservationLoglik:
     """``loglik(X, tobs, layer) -> (N,)`` of a :class:`TrackObservation`: ``lik.batch`` on its image observation,
     minus the ``coverage`` cue ``λ_cov(l) Σ_v E_v`` (:func:`jaxmocap.likelihood.coverage.coverage_energy`) when
@@ -67,8 +73,8 @@ def observation_loglik(
     (per-particle gradients in one ``vmap``), which the gradient filters take
     (:func:`jaxmocap.likelihood.gradients.batch_value_and_grad`). The result is a pytree
     (:class:`ObservationLoglik`): held by a filter, its likelihood's parameters (cue weights, λ, view weights, the
-    coverage λ) are data of the filter's step."""
-    return ObservationLoglik(lik, coverage_lambda, d_max, model, rig, num_layers)
+    coverage λ) are data of the filter's step (constants with ``params_data=False``, see :class:`ObservationLoglik`)."""
+    return ObservationLoglik(lik, coverage_lambda, d_max, model, rig, num_layers, params_data)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -80,7 +86,12 @@ class ObservationLoglik:
     ``num_layers`` and the geometry — the likelihood's body model, rig, flesh points and references, and the
     coverage cue's ``model``, ``rig`` and ``d_max`` — held by identity (:class:`_Same`), so that they stay constants
     of the compiled program (folded by XLA as before: tracks identical bit for bit) while a likelihood that differs
-    only in its parameters (``dataclasses.replace``) reuses it. Hashed by identity."""
+    only in its parameters (``dataclasses.replace``) reuses it. Hashed by identity.
+
+    ``params_data=False`` keeps the parameters constants too (a new value compiles anew): the tracker's gradient
+    filters use it, since XLA compiles the reverse pass of ``λ_c k_c w_v E_c,v`` with traced factors into another
+    order of float operations than with constant ones (the forward pass is the same bit for bit either way), and
+    their tracks stay those of a program with the parameters folded in."""
 
     lik: lk.Likelihood | None
     coverage_lambda: jnp.ndarray | None
@@ -88,6 +99,7 @@ class ObservationLoglik:
     model: object
     rig: object
     num_layers: int = 1
+    params_data: bool = True
 
     def _layer(self, layer):
         return jnp.clip(jnp.asarray(getattr(layer, "index", layer)), 0, self.num_layers - 1)
@@ -143,14 +155,17 @@ def _flatten_observation_loglik(f: ObservationLoglik):
     params = None if lik is None else tuple(getattr(lik, n) for n in _LIK_PARAMS)
     geometry = None if lik is None else _Same(*(getattr(lik, n) for n in _LIK_GEOMETRY))
     config = None if lik is None else (lik.cues, lik.contour_points, lik.chunk_size)
-    children = (params, f.coverage_lambda)
-    aux = (geometry, config, _Same(f.d_max, f.model, f.rig), f.num_layers)
+    if f.params_data:
+        children, constants = (params, f.coverage_lambda), None
+    else:
+        children, constants = (), _Same(params, f.coverage_lambda)
+    aux = (geometry, config, _Same(f.d_max, f.model, f.rig), f.num_layers, constants)
     return children, aux
 
 
 def _unflatten_observation_loglik(aux, children) -> ObservationLoglik:
-    geometry, config, coverage, num_layers = aux
-    params, coverage_lambda = children
+    geometry, config, coverage, num_layers, constants = aux
+    params, coverage_lambda = children if constants is None else constants.values
     lik = None
     if geometry is not None:
         cues, contour_points, chunk_size = config
@@ -162,7 +177,7 @@ def _unflatten_observation_loglik(aux, children) -> ObservationLoglik:
             chunk_size=chunk_size,
         )
     d_max, model, rig = coverage.values
-    return ObservationLoglik(lik, coverage_lambda, d_max, model, rig, num_layers)
+    return ObservationLoglik(lik, coverage_lambda, d_max, model, rig, num_layers, constants is None)
 
 
 jax.tree_util.register_pytree_node(
@@ -264,7 +279,13 @@ class TrackSetup:
     def loglik(self):
         """The filter's likelihood ``loglik(X, tobs, layer) -> (N,)`` (:func:`observation_loglik`)."""
         return observation_loglik(
-            self.likelihood, self.coverage_lambda, self.d_max, self.layers, self.model, self._rig
+            self.likelihood,
+            self.coverage_lambda,
+            self.d_max,
+            self.layers,
+            self.model,
+            self._rig,
+            params_data=self.o.filter not in GRADIENT_FILTERS,
         )
 
     def set_references(self, x0: np.ndarray, first: TrackObservation) -> None:
