@@ -235,6 +235,18 @@ def test_tracker_likelihood_parameters_are_data(two_cues):
         tobs,
     )
     assert len(traces) == 3  # the Partial above, then another geometry (new arrays held as constants)
+    # params_data=False (the gradient filters): the parameters are constants, a new value compiles anew
+    const = observation_loglik(lik, num_layers=2, params_data=False)
+    run(dataclasses.replace(f, loglik_batch=const), jax.random.key(1), state, tobs)
+    run(dataclasses.replace(f, loglik_batch=const), jax.random.key(1), state, tobs)
+    assert len(traces) == 4
+    run(
+        dataclasses.replace(f, loglik_batch=dataclasses.replace(const, lik=lik2)),
+        jax.random.key(1),
+        state,
+        tobs,
+    )
+    assert len(traces) == 5
 
 
 def _lik_batch_image(lik, X, tobs, layer):
