@@ -195,7 +195,13 @@ _KINDS = ("fixed", "survival", "corrected", "rule")
 
 @dataclasses.dataclass(frozen=True)
 class Schedule:
-    """Static, hashable description of an annealing schedule over ``num_layers`` layers.
+    """An annealing schedule over ``num_layers`` layers: a pytree whose values are data and whose structure is static.
+
+    Data (pytree leaves, traced when the schedule, or a filter holding it, is an argument of ``jit``): ``betas``,
+    ``diffusion_scales`` (tuples of ``num_layers`` scalars, or None) and ``survival_target``; a new value of any of
+    them reuses the compiled step. Static (part of the tree structure, a new value compiles anew): ``kind``,
+    ``num_layers``, ``beta_max``, ``tol``, ``maxiter``, ``monotone``, ``beta_rule``. A schedule built from Python
+    numbers is hashable and compares by value.
 
     Attributes:
       kind: ``"fixed"`` (``betas`` per layer), ``"survival"`` (Deutscher's rule every layer, :func:`solve_beta`),
@@ -209,8 +215,9 @@ class Schedule:
       tol, maxiter: bisection tolerance on ``|α - α_target|`` and step limit.
       monotone: keep β non-decreasing in ``"corrected"``.
       beta_rule: for ``"rule"``, ``beta_rule(ll, schedule) -> BetaSolution`` of the layer's ``(N,)`` log-likelihoods
-        (``stop_gradient`` already applied); it reads its parameters (``survival_target``, ``beta_max``, ``tol``,
-        ``maxiter``) from the schedule. A module-level function, so that the schedule stays static and hashable.
+        (``stop_gradient`` already applied); it reads its parameters (``survival_target``, traced, and the static
+        ``beta_max``, ``tol``, ``maxiter``) from the schedule. A module-level function, so that the schedule's
+        structure stays hashable.
     """
 
     kind: str = "survival"
@@ -225,6 +232,7 @@ class Schedule:
     beta_rule: Callable[[jnp.ndarray, Schedule], BetaSolution] | None = None
 
     def __post_init__(self):
+        # the constructors validate; pytree unflattening (traced leaves) goes through _unflatten, not here
         if self.kind not in _KINDS:
             raise ValueError(f"unknown schedule kind {self.kind!r}; choose one of {_KINDS}")
         if self.num_layers < 1:
@@ -289,6 +297,25 @@ class Schedule:
             **kw,
         )
 
+
+_SCHEDULE_DATA = ("betas", "diffusion_scales", "survival_target")
+_SCHEDULE_STATIC = tuple(f.name for f in dataclasses.fields(Schedule) if f.name not in _SCHEDULE_DATA)
+
+
+def _flatten_schedule(s: Schedule):
+    return tuple(getattr(s, n) for n in _SCHEDULE_DATA), tuple(getattr(s, n) for n in _SCHEDULE_STATIC)
+
+
+def _unflatten_schedule(static, data) -> Schedule:
+    s = object.__new__(Schedule)  # no __post_init__: leaves may be tracers (or any placeholder of tree_util)
+    for n, v in zip(_SCHEDULE_STATIC, static, strict=True):
+        object.__setattr__(s, n, v)
+    for n, v in zip(_SCHEDULE_DATA, data, strict=True):
+        object.__setattr__(s, n, v)
+    return s
+
+
+jax.tree_util.register_pytree_node(Schedule, _flatten_schedule, _unflatten_schedule)
 
 IROS2007_LIKELIHOOD_EXPONENTS = (0.1, 0.4, 1.0)
 IROS2007_DYNAMICS_EXPONENTS = (1.0, 4.0, 25.0)

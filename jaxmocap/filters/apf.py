@@ -50,10 +50,12 @@ FIRST_LAYERS = ("dynamics", "icondensation")
 class APF(base.FilterBase):
     """Annealed particle filter; with ``first_layer="icondensation"`` the IAPF.
 
-    Arrays (traced): ``diffusion_std (D,)`` (Δ), ``lower, upper``; for the IAPF also ``prior_mean``, ``prior_std``
-    and ``detection_std`` (None → Δ · s_0).
-    Static: ``loglik_batch(X, observation, layer)``, ``num_particles`` (per layer), ``schedule``
-    (:class:`jaxmocap.filters.annealing.Schedule`), ``first_layer`` (``"dynamics"`` or ``"icondensation"``), the
+    Data (traced): ``diffusion_std (D,)`` (Δ), ``lower, upper``, the values of ``schedule``
+    (:class:`jaxmocap.filters.annealing.Schedule`: β, diffusion scales, survival target); for the IAPF also
+    ``prior_mean``, ``prior_std`` and ``detection_std`` (None → Δ · s_0); ``loglik_batch`` when it is a pytree
+    (:func:`jaxmocap.filters.base.register_filter`).
+    Static: a plain ``loglik_batch(X, observation, layer)``, ``num_particles`` (per layer), the schedule's kind,
+    number of layers and bisection settings, ``first_layer`` (``"dynamics"`` or ``"icondensation"``), the
     ICONDENSATION options (``dynamics_fraction``, ``detection_fraction``, ``proposal_center``, ``weighting``),
     ``resampling``, ``limit_mode``, ``circular``, ``recovery``, ``recovery_widen``.
     """
@@ -142,7 +144,9 @@ class APF(base.FilterBase):
         return State(X, log_w, estimate), Info(estimate, best, all_stats, recovered)
 
 
-base.register_filter(APF, ("diffusion_std", "lower", "upper", "prior_mean", "prior_std", "detection_std"))
+base.register_filter(
+    APF, ("diffusion_std", "lower", "upper", "prior_mean", "prior_std", "detection_std", "schedule")
+)
 
 
 def weigh_layer(filt, key, X, log_corr, observation, layer, beta_prev, surv_prev, previous_estimate):

@@ -12,9 +12,11 @@ Conventions:
   (``"clip"``: probability mass piles up on the bound) or by reflection (``"reflect"``: the Gaussian is folded back
   into the box, a kernel that stays symmetric, k(x → y) = k(y → x), and puts no atom on the bound); infinite bounds
   mean no limit;
-* a filter is a frozen dataclass registered as a pytree: its arrays (diffusion std, limits, prior) are leaves, traced
-  when the filter is an argument of ``jit``; its configuration (counts, schemes, the likelihood callable) is static.
-  ``jax.jit(type(f).step)(f, key, state, observation)`` or ``jax.jit(f.step)`` compiles once and serves every frame.
+* a filter is a frozen dataclass registered as a pytree (:func:`register_filter`): its arrays (diffusion std,
+  limits, prior), its annealing schedule's values (β, diffusion scales, survival target) and a pytree likelihood's
+  leaves are data, traced when the filter is an argument of ``jit``; its configuration (counts, number of layers,
+  schemes, modes, a plain likelihood function) is static. ``jax.jit(lambda f, k, s, o: f.step(k, s, o))`` compiles
+  once for every filter that differs from the first only in data.
 """
 
 from __future__ import annotations
@@ -138,11 +140,42 @@ class FilterBase:
         )  # fmt: skip
 
 
+def _is_pytree_callable(fn) -> bool:
+    """True when ``fn`` is a pytree with children (a :class:`jax.tree_util.Partial`, a registered likelihood
+    object), False for a plain function (a single leaf)."""
+    return fn is not None and not jax.tree_util.treedef_is_leaf(jax.tree_util.tree_structure(fn))
+
+
 def register_filter(cls, data_fields: tuple[str, ...]):
-    """Register a frozen dataclass as a pytree: ``data_fields`` are array leaves, every other field is static."""
+    """Register a frozen dataclass as a pytree: ``data_fields`` (arrays, a :class:`~annealing.Schedule`) are data,
+    every other field is static (part of the tree structure, hashed into ``jit``'s cache).
+
+    ``loglik_batch`` is data when it is itself a pytree with children (e.g. a :class:`jax.tree_util.Partial` over a
+    :class:`jaxmocap.likelihood.compose.Likelihood`, whose cue weights and λ schedule are leaves), static when it is
+    a plain function (hashed by identity). So filters that differ only in data share one compiled step.
+    """
     names = tuple(f.name for f in dataclasses.fields(cls))
-    meta = tuple(n for n in names if n not in data_fields)
-    jax.tree_util.register_dataclass(cls, data_fields=list(data_fields), meta_fields=list(meta))
+    data = tuple(n for n in names if n in data_fields)
+    meta = tuple(n for n in names if n not in data_fields and n != "loglik_batch")
+
+    def flatten(f):
+        fn = f.loglik_batch
+        traced = _is_pytree_callable(fn)
+        children = (fn if traced else None, *(getattr(f, n) for n in data))
+        aux = (traced, None if traced else fn, *(getattr(f, n) for n in meta))
+        return children, aux
+
+    def unflatten(aux, children):
+        f = object.__new__(cls)  # no __post_init__: the leaves may be tracers
+        traced, static_fn, *meta_values = aux
+        object.__setattr__(f, "loglik_batch", children[0] if traced else static_fn)
+        for n, v in zip(data, children[1:], strict=True):
+            object.__setattr__(f, n, v)
+        for n, v in zip(meta, meta_values, strict=True):
+            object.__setattr__(f, n, v)
+        return f
+
+    jax.tree_util.register_pytree_node(cls, flatten, unflatten)
     return cls
 
 

@@ -165,9 +165,10 @@ DEFAULT_REFINE = GradientMove(steps=10, learning_rate=0.3, optimizer="adam")
 class HybridAPF(base.FilterBase):
     """Annealed particle filter with gradient moves between resampling and diffusion, and/or a refined estimate.
 
-    Arrays (traced): ``diffusion_std (D,)`` (Δ), ``lower``, ``upper``.
-    Static: ``loglik_batch(X, observation, layer)`` (differentiable in ``X``), ``num_particles`` (per layer),
-    ``schedule``, ``move`` (:class:`GradientMove` or None), ``refine`` (:class:`GradientMove` or None; its
+    Data (traced): ``diffusion_std (D,)`` (Δ), ``lower``, ``upper``, the values of ``schedule``; ``loglik_batch``
+    when it is a pytree.
+    Static: a plain ``loglik_batch(X, observation, layer)`` (differentiable in ``X``), ``num_particles`` (per
+    layer), the schedule's structure, ``move`` (:class:`GradientMove` or None), ``refine`` (:class:`GradientMove` or None; its
     ``best_k``/``layers`` are ignored), ``refine_from`` (``"mean"`` or ``"best"``), ``resampling``, ``limit_mode``,
     ``circular``, ``recovery``, ``recovery_widen`` (as in :class:`~jaxmocap.filters.apf.APF`).
     """
@@ -304,4 +305,4 @@ class HybridAPF(base.FilterBase):
         return points[jnp.argmax(values)]
 
 
-base.register_filter(HybridAPF, ("diffusion_std", "lower", "upper"))
+base.register_filter(HybridAPF, ("diffusion_std", "lower", "upper", "schedule"))

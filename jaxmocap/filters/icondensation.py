@@ -162,7 +162,7 @@ class ICondensation(base.FilterBase):
 
     Arrays (traced): ``diffusion_std (D,)`` (Δ, the dynamics), ``prior_mean (D,)`` (x_init), ``prior_std (D,)``
     (Σ0^{1/2}), ``detection_std (D,)`` (Δ_D; None → Δ), ``lower, upper`` (or None).
-    Static: ``loglik_batch``, ``num_particles``, ``dynamics_fraction`` (α), ``detection_fraction`` (β),
+    Static: ``loglik_batch`` (data when it is a pytree), ``num_particles``, ``dynamics_fraction`` (α), ``detection_fraction`` (β),
     ``proposal_center`` (None → :func:`default_proposal_center`), ``weighting``, ``resampling``, ``limit_mode``,
     ``circular``, ``recovery``, ``recovery_widen`` (as in :class:`jaxmocap.filters.sir.SIR`).
     """

@@ -54,9 +54,10 @@ __all__ = ["Info", "Partitioned", "State", "hierarchical"]
 class Partitioned(base.FilterBase):
     """Partitioned (or, with ``schedule``, hierarchical) sampling.
 
-    Arrays (traced): ``diffusion_std (D,)``, ``lower, upper``.
-    Static: ``loglik_batch``, ``groups`` (tuple of tuples of DOF indices), ``counts`` (particles per group),
-    ``schedule`` (None: partitioned sampling), ``resampling``, ``limit_mode``, ``circular``, ``recovery``,
+    Data (traced): ``diffusion_std (D,)``, ``lower, upper``, the values of ``schedule`` (None: partitioned
+    sampling); ``loglik_batch`` when it is a pytree.
+    Static: a plain ``loglik_batch``, ``groups`` (tuple of tuples of DOF indices), ``counts`` (particles per group),
+    the schedule's structure, ``resampling``, ``limit_mode``, ``circular``, ``recovery``,
     ``recovery_widen``, ``scan_partitions`` (run equal-count partitions in one ``lax.scan``; the likelihood then
     receives the partition index traced — see the module docstring).
     """
@@ -210,4 +211,4 @@ def hierarchical(
     return Partitioned(loglik_batch, diffusion_std, groups, counts, schedule=schedule, **kw)
 
 
-base.register_filter(Partitioned, ("diffusion_std", "lower", "upper"))
+base.register_filter(Partitioned, ("diffusion_std", "lower", "upper", "schedule"))

@@ -34,7 +34,7 @@ class SIR(base.FilterBase):
     """Bootstrap particle filter with random-walk dynamics.
 
     Arrays (traced): ``diffusion_std (D,)`` (Δ), ``lower, upper (D,)`` joint limits or None.
-    Static: ``loglik_batch``, ``num_particles``, ``resampling`` (a :mod:`jaxmocap.filters.resampling` scheme name),
+    Static: ``loglik_batch`` (data when it is a pytree), ``num_particles``, ``resampling`` (a :mod:`jaxmocap.filters.resampling` scheme name),
     ``limit_mode``, ``circular`` (tuple of bools per DOF, or None), ``resample_threshold`` (None: resample every frame;
     else resample when the survival rate is below it), ``recovery`` (``"reinit"`` or ``"uniform"``) and
     ``recovery_widen`` (std multiplier of the re-initialised cloud).

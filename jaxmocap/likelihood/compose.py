@@ -50,10 +50,12 @@ LI_KULIC_BASE = 100.0
 @dataclasses.dataclass(frozen=True)
 class Cue:
     """One term of the likelihood: cue ``name`` (a key of :data:`jaxmocap.likelihood.cues.CUES`), weight ``k_c`` and static
-    parameters (a tuple of ``(key, value)`` pairs or a dict, kept hashable)."""
+    parameters (a tuple of ``(key, value)`` pairs or a dict, kept hashable). The weight is data: it is left out of
+    the comparison and the hash (cues that differ only in weight are equal), and :meth:`Likelihood.create` copies it
+    into the likelihood's ``cue_weights`` leaf, so that a new weight reuses the compiled likelihood."""
 
     name: str
-    weight: float = 1.0
+    weight: float = dataclasses.field(default=1.0, compare=False)
     params: tuple = ()
 
     def __post_init__(self):
@@ -86,8 +88,11 @@ class Likelihood:
     """A composed likelihood (see the module docstring). Build it with :meth:`create`.
 
     Leaves: ``model``, ``rig``, ``surface`` (flesh points), ``view_weights (V,)``, ``schedule (L, C, V)``,
-    ``references`` (per cue: None or the reference arrays of :meth:`with_references`).
-    Static: ``cues`` (tuple of :class:`Cue`), ``contour_points`` (per silhouette line), ``chunk_size``.
+    ``cue_weights (C,)`` (``k_c``; :meth:`create` copies the weights of ``cues``), ``references`` (per cue: None or the reference
+    arrays of :meth:`with_references`).
+    Static: ``cues`` (tuple of :class:`Cue`: names and parameters), ``contour_points`` (per silhouette line),
+    ``chunk_size``. A likelihood that differs from another only in its leaves (weights, λ, references) is the same
+    program under ``jit``: ``dataclasses.replace(lik, cue_weights=..., schedule=...)`` does not recompile.
     """
 
     model: body.BodyModel
@@ -96,6 +101,7 @@ class Likelihood:
     view_weights: jnp.ndarray
     schedule: jnp.ndarray
     references: tuple = ()
+    cue_weights: jnp.ndarray | None = None
     cues: tuple = dataclasses.field(metadata=dict(static=True), default=())
     contour_points: int = dataclasses.field(metadata=dict(static=True), default=8)
     chunk_size: int = dataclasses.field(metadata=dict(static=True), default=128)
@@ -165,6 +171,7 @@ class Likelihood:
             view_weights=jnp.asarray(w, dtype),
             schedule=jnp.asarray(lam, dtype),
             references=(None,) * C,
+            cue_weights=jnp.asarray([c.weight for c in cue_list], dtype),
             cues=cue_list,
             contour_points=contour_points,
             chunk_size=int(chunk_size),
@@ -367,15 +374,20 @@ class Likelihood:
         return self._energies_from_pose(self.pose_stage(x), obs, self.prepare(obs) if aux is None else aux)
 
     def _energies_from_pose(self, pose: dict, obs: Observation, aux: tuple) -> jnp.ndarray:
+        if (
+            self.cue_weights is None
+        ):  # the cues' own weights are not part of the structure (Cue: compare=False)
+            raise ValueError("a Likelihood needs cue_weights (C,): build it with Likelihood.create")
         g = self.geometry_from_pose(pose, obs.image_shape)
         V = self.rig.num_views
         rows = []
         for c, cue in enumerate(self.cues):
             e = cue.spec.energy(g, obs, self._context(c, aux[c]))
+            k = self.cue_weights[c]
             if cue.spec.per_view:
-                rows.append(cue.weight * self.view_weights * e)
+                rows.append(k * self.view_weights * e)
             else:
-                rows.append(jnp.zeros((V,), e.dtype).at[0].set(cue.weight * e))
+                rows.append(jnp.zeros((V,), e.dtype).at[0].set(k * e))
         return jnp.stack(rows)
 
     def energies(self, x: jnp.ndarray, obs: Observation, aux: tuple | None = None) -> jnp.ndarray:
@@ -511,7 +523,7 @@ class Likelihood:
 
 jax.tree_util.register_dataclass(
     Likelihood,
-    data_fields=["model", "rig", "surface", "view_weights", "schedule", "references"],
+    data_fields=["model", "rig", "surface", "view_weights", "schedule", "references", "cue_weights"],
     meta_fields=["cues", "contour_points", "chunk_size"],
 )
 

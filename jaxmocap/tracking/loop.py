@@ -2,7 +2,9 @@
 
 :class:`TrackingLoop` drives a setup (:class:`jaxmocap.tracking.setup.TrackSetup` or PARSEC's): per frame, the key
 is ``fold_in(key(seed), frame)`` (never carried), so that a resumed run reproduces an uninterrupted one; a damped
-constant-velocity prediction of the root translation, the filter step (jitted **once**: ``trace_count`` stays 1),
+constant-velocity prediction of the root translation, the filter step (jitted **once**, with the filter as an
+argument, so that its data — diffusion std, schedule values, the likelihood's cue weights and λ — are not constants
+of the program: ``trace_count`` stays 1),
 track-loss detection and re-initialisation, and incremental outputs (:mod:`jaxmocap.io.export`) with a resume
 checkpoint (``resume.npz``) after each frame.
 
@@ -98,10 +100,12 @@ class TrackingLoop:
     def _make_filter(self, x0: np.ndarray):
         self.filter = self.setup.make_filter(x0)
 
-        def step(key, state, tobs):
+        def step(filt, key, state, tobs):
             self.trace_count += 1
-            return self.filter.step(key, state, tobs)
+            return filt.step(key, state, tobs)
 
+        # the filter (a pytree: its arrays, schedule values and likelihood leaves are data) is an argument, not a
+        # constant of the program: a filter that differs only in data reuses the compiled step
         self._step = jax.jit(step)
 
     def _key(self, t: int, purpose: int = 0):
@@ -224,7 +228,7 @@ class TrackingLoop:
                 if len(hist) == 2 and hist[0][0] == t - 2 and hist[1][0] == t - 1 and setup.velocity > 0:
                     v = np.where(trans, hist[1][1] - hist[0][1], 0.0) * setup.velocity
                     state = state._replace(particles=state.particles + jnp.asarray(v, dt))
-                state, info = self._step(self._key(t), state, tobs)
+                state, info = self._step(self.filter, self._key(t), state, tobs)
                 # prepare the next frame on the host while the step runs
                 pending = self._observe(frames[i + 1]) if i + 1 < len(frames) else None
                 info = jax.device_get(info)

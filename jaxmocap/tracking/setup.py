@@ -16,6 +16,8 @@ spread, obs)``, ``detection(fd, masks, last_good)``, ``reinit_mean(fd, masks, la
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -42,7 +44,7 @@ from jaxmocap.tracking.options import (
 )
 from jaxmocap.tracking.progress import warn
 
-__all__ = ["TrackSetup", "frame_range", "observation_loglik"]
+__all__ = ["ObservationLoglik", "TrackSetup", "frame_range", "observation_loglik"]
 
 #: Cues that read the foreground.
 FOREGROUND_CUES = ("foreground", "coverage", "silhouette_divergence")
@@ -56,38 +58,131 @@ def frame_range(spec: str | None, num_frames: int) -> list[int]:
 
 
 def observation_loglik(
-    lik: lk.Likelihood | None, coverage_lambda=None, d_max=None, num_layers: int = 1, model=None, rig=None
-):
+    lik: lk.Likelihood | None,
+    coverage_lambda=None,
+    d_max=None,
+    num_layers: int = 1,
+    model=None,
+    rig=None,
+    params_data: bool = True,
+) -> ObservationLoglik:
     """``loglik(X, tobs, layer) -> (N,)`` of a :class:`TrackObservation`: ``lik.batch`` on its image observation,
     minus the ``coverage`` cue ``λ_cov(l) Σ_v E_v`` (:func:`jaxmocap.likelihood.coverage.coverage_energy`) when
     ``coverage_lambda (L,)`` is given (the tracker adds it after the image cues' sum: the order of its float
     operations, on which the tracks depend bit for bit). It carries ``batch_value_and_grad(X, tobs, layer)``
     (per-particle gradients in one ``vmap``), which the gradient filters take
-    (:func:`jaxmocap.likelihood.gradients.batch_value_and_grad`)."""
+    (:func:`jaxmocap.likelihood.gradients.batch_value_and_grad`). The result is a pytree
+    (:class:`ObservationLoglik`): held by a filter, its likelihood's parameters (cue weights, λ, view weights, the
+    coverage λ) are data of the filter's step (constants with ``params_data=False``, see :class:`ObservationLoglik`)."""
+    return ObservationLoglik(lik, coverage_lambda, d_max, model, rig, num_layers, params_data)
 
-    def cover(x, tobs):
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class ObservationLoglik:
+    """The tracker's likelihood (:func:`observation_loglik`) as a pytree.
+
+    Data (traced when a filter holding it is an argument of ``jit``): the parameters of the likelihood, its cue
+    weights ``k_c (C,)``, λ table ``(L, C, V)`` and view weights ``(V,)``, and ``coverage_lambda (L,)``. Static:
+    ``num_layers`` and the geometry — the likelihood's body model, rig, flesh points and references, and the
+    coverage cue's ``model``, ``rig`` and ``d_max`` — held by identity (:class:`_Same`), so that they stay constants
+    of the compiled program (folded by XLA as before: tracks identical bit for bit) while a likelihood that differs
+    only in its parameters (``dataclasses.replace``) reuses it. Hashed by identity.
+
+    ``params_data=False`` keeps the parameters constants too (a new value compiles anew): the tracker's gradient
+    filters use it, since XLA compiles the reverse pass of ``λ_c k_c w_v E_c,v`` with traced factors into another
+    order of float operations than with constant ones (the forward pass is the same bit for bit either way), and
+    their tracks stay those of a program with the parameters folded in."""
+
+    lik: lk.Likelihood | None
+    coverage_lambda: jnp.ndarray | None
+    d_max: jnp.ndarray | None
+    model: object
+    rig: object
+    num_layers: int = 1
+    params_data: bool = True
+
+    def _layer(self, layer):
+        return jnp.clip(jnp.asarray(getattr(layer, "index", layer)), 0, self.num_layers - 1)
+
+    def _cover(self, x, tobs):
         im = tobs.image
-        return jnp.sum(coverage_energy(model, rig, x, im.silhouette, im.silhouette_w, d_max))
+        return jnp.sum(coverage_energy(self.model, self.rig, x, im.silhouette, im.silhouette_w, self.d_max))
 
-    def loglik(X, tobs, layer):
-        l = jnp.clip(jnp.asarray(getattr(layer, "index", layer)), 0, num_layers - 1)
-        ll = jnp.zeros(X.shape[0], X.dtype) if lik is None else lik.batch(X, tobs.image, l)
-        if coverage_lambda is not None:
-            ll = ll - coverage_lambda[l] * jax.vmap(lambda x: cover(x, tobs))(X)
+    def __call__(self, X, tobs, layer):
+        l = self._layer(layer)
+        ll = jnp.zeros(X.shape[0], X.dtype) if self.lik is None else self.lik.batch(X, tobs.image, l)
+        if self.coverage_lambda is not None:
+            ll = ll - self.coverage_lambda[l] * jax.vmap(lambda x: self._cover(x, tobs))(X)
         return jnp.where(jnp.isfinite(ll), ll, -jnp.inf)
 
-    def one(x, tobs, l):
-        ll = 0.0 if lik is None else lik.log_likelihood(x, tobs.image, l)
-        if coverage_lambda is not None:
-            ll = ll - coverage_lambda[l] * cover(x, tobs)
+    def _one(self, x, tobs, l):
+        ll = 0.0 if self.lik is None else self.lik.log_likelihood(x, tobs.image, l)
+        if self.coverage_lambda is not None:
+            ll = ll - self.coverage_lambda[l] * self._cover(x, tobs)
         return ll
 
-    def batch_value_and_grad(X, tobs, layer):
-        l = jnp.clip(jnp.asarray(getattr(layer, "index", layer)), 0, num_layers - 1)
-        return lk.finite_value_and_grad(*jax.vmap(jax.value_and_grad(lambda x: one(x, tobs, l)))(X))
+    def batch_value_and_grad(self, X, tobs, layer):
+        l = self._layer(layer)
+        return lk.finite_value_and_grad(*jax.vmap(jax.value_and_grad(lambda x: self._one(x, tobs, l)))(X))
 
-    loglik.batch_value_and_grad = batch_value_and_grad
-    return loglik
+
+class _Same:
+    """Objects held in a tree structure: equal to another holder only when it holds the very same objects (hash by
+    their ids; the holder keeps them alive)."""
+
+    __slots__ = ("values",)
+
+    def __init__(self, *values):
+        self.values = values
+
+    def __eq__(self, other):
+        return (
+            isinstance(other, _Same)
+            and len(other.values) == len(self.values)
+            and all(a is b for a, b in zip(self.values, other.values, strict=True))
+        )
+
+    def __hash__(self):
+        return hash(tuple(id(v) for v in self.values))
+
+
+_LIK_PARAMS = ("cue_weights", "schedule", "view_weights")
+_LIK_GEOMETRY = ("model", "rig", "surface", "references")
+
+
+def _flatten_observation_loglik(f: ObservationLoglik):
+    lik = f.lik
+    params = None if lik is None else tuple(getattr(lik, n) for n in _LIK_PARAMS)
+    geometry = None if lik is None else _Same(*(getattr(lik, n) for n in _LIK_GEOMETRY))
+    config = None if lik is None else (lik.cues, lik.contour_points, lik.chunk_size)
+    if f.params_data:
+        children, constants = (params, f.coverage_lambda), None
+    else:
+        children, constants = (), _Same(params, f.coverage_lambda)
+    aux = (geometry, config, _Same(f.d_max, f.model, f.rig), f.num_layers, constants)
+    return children, aux
+
+
+def _unflatten_observation_loglik(aux, children) -> ObservationLoglik:
+    geometry, config, coverage, num_layers, constants = aux
+    params, coverage_lambda = children if constants is None else constants.values
+    lik = None
+    if geometry is not None:
+        cues, contour_points, chunk_size = config
+        lik = lk.Likelihood(
+            **dict(zip(_LIK_GEOMETRY, geometry.values, strict=True)),
+            **dict(zip(_LIK_PARAMS, params, strict=True)),
+            cues=cues,
+            contour_points=contour_points,
+            chunk_size=chunk_size,
+        )
+    d_max, model, rig = coverage.values
+    return ObservationLoglik(lik, coverage_lambda, d_max, model, rig, num_layers, constants is None)
+
+
+jax.tree_util.register_pytree_node(
+    ObservationLoglik, _flatten_observation_loglik, _unflatten_observation_loglik
+)
 
 
 class TrackSetup:
@@ -184,7 +279,13 @@ class TrackSetup:
     def loglik(self):
         """The filter's likelihood ``loglik(X, tobs, layer) -> (N,)`` (:func:`observation_loglik`)."""
         return observation_loglik(
-            self.likelihood, self.coverage_lambda, self.d_max, self.layers, self.model, self._rig
+            self.likelihood,
+            self.coverage_lambda,
+            self.d_max,
+            self.layers,
+            self.model,
+            self._rig,
+            params_data=self.o.filter not in GRADIENT_FILTERS,
         )
 
     def set_references(self, x0: np.ndarray, first: TrackObservation) -> None:
