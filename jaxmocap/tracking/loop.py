@@ -30,11 +30,12 @@ import numpy as np
 
 from jaxmocap.errors import MocapInputError
 from jaxmocap.filters.base import State
+from jaxmocap.filters.factory import particles_text
 from jaxmocap.io import export
 from jaxmocap.io.sources import BadFrame
 from jaxmocap.tracking import run_folder
 from jaxmocap.tracking.init import root_translation_dofs
-from jaxmocap.tracking.progress import Progress
+from jaxmocap.tracking.progress import CompileNotice, Progress
 
 __all__ = ["LossTracker", "TrackingLoop", "layer_records"]
 
@@ -228,7 +229,14 @@ class TrackingLoop:
                 if len(hist) == 2 and hist[0][0] == t - 2 and hist[1][0] == t - 1 and setup.velocity > 0:
                     v = np.where(trans, hist[1][1] - hist[0][1], 0.0) * setup.velocity
                     state = state._replace(particles=state.particles + jnp.asarray(v, dt))
-                state, info = self._step(self.filter, self._key(t), state, tobs)
+                if i == start:  # the first call compiles the step: say so, and how long it took
+                    what = (
+                        f"the {o.filter} step ({model.name}, {particles_text(setup.num_particles)} particles)"
+                    )
+                    with CompileNotice(what, enabled=not self.quiet):
+                        state, info = self._step(self.filter, self._key(t), state, tobs)
+                else:
+                    state, info = self._step(self.filter, self._key(t), state, tobs)
                 # prepare the next frame on the host while the step runs
                 pending = self._observe(frames[i + 1]) if i + 1 < len(frames) else None
                 info = jax.device_get(info)

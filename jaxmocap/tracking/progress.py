@@ -1,4 +1,4 @@
-"""The progress line of a tracking run, and its warnings."""
+"""The progress line of a tracking run, the lines around its compilation, and its warnings."""
 
 from __future__ import annotations
 
@@ -6,7 +6,9 @@ import math
 import sys
 import time
 
-__all__ = ["Progress", "warn"]
+import jax
+
+__all__ = ["CompileNotice", "Progress", "warn"]
 
 
 class Progress:
@@ -55,6 +57,34 @@ class Progress:
                 self.last_pct = pct
                 self.stream.write(text + "\n")
                 self.stream.flush()
+
+
+class CompileNotice:
+    """``with CompileNotice(what):`` around the first call of a jitted function: a line saying what is being
+    compiled before it, and one with the time it took after it (the call returns once XLA has compiled the program
+    and dispatched it), saying whether the program is now in the persistent compilation cache
+    (:mod:`jaxmocap.compilation_cache`)."""
+
+    def __init__(self, what: str, enabled: bool = True, stream=None):
+        self.what, self.enabled = what, enabled
+        self.stream = sys.stderr if stream is None else stream
+        self.seconds = None
+
+    def __enter__(self):
+        if self.enabled:
+            self.stream.write(f"jaxmocap: compiling {self.what} ...\n")
+            self.stream.flush()
+        self.t0 = time.monotonic()
+        return self
+
+    def __exit__(self, kind, value, tb):
+        self.seconds = time.monotonic() - self.t0
+        if self.enabled and kind is None:
+            cache = jax.config.jax_compilation_cache_dir
+            where = f"cached for next time in {cache}" if cache else "compilation cache off"
+            self.stream.write(f"jaxmocap: compiled in {self.seconds:.1f} s, {where}\n")
+            self.stream.flush()
+        return False
 
 
 def warn(msg: str) -> None:
