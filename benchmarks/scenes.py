@@ -130,9 +130,9 @@ class CachedTracker(tracker.Tracker):
             super()._make_filter(x0)
             inner = self._step
 
-            def timed(key, state, tobs):
+            def timed(filt, key, state, tobs):
                 t = time.perf_counter()
-                out = inner(key, state, tobs)
+                out = inner(filt, key, state, tobs)
                 out[0].particles.block_until_ready()
                 self.step_seconds.append(time.perf_counter() - t)
                 return out

@@ -17,7 +17,7 @@ Two tables, both with the persistent compilation cache off (``JAXMOCAP_CACHE_DIR
 2. **First frame** (default): the wall time from process start to the end of a one-frame ``jaxmocap track`` run
    (import, features, initialisation, compilation of the filter step, one step, outputs) for every model × filter
    family: ``apf``, ``iapf``, ``partitioned`` with equal counts and with unequal counts (Li & Kulić's
-   1000,200,350,… on ``full25``), ``hierarchical``, ``hybrid``. With ``--before DIR`` (another checkout of the
+   1000,200,350,… on ``full25``), ``hierarchical``, ``hybrid`` (with the default cues less ``depth``, which has no gradient). With ``--before DIR`` (another checkout of the
    project, e.g. a ``git worktree`` of an older commit) each configuration is run with that checkout and with this
    one in alternation, so that both see the same machine load; the table gives both times and their ratio.
 
@@ -162,6 +162,8 @@ def first_frame_seconds(
     cmd += ["--filter", name, "--frames", "0:1", "--quiet", "--overwrite"]
     if rule == "unequal":
         cmd += ["--particles", unequal_counts(model)]
+    if name == "hybrid":  # the gradient filters need differentiable cues: the default set without depth
+        cmd += ["--cues", "foreground,edge_distance,coverage:4"]
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True, env=_env(checkout), cwd=str(out.parent))
     seconds = time.perf_counter() - t0

@@ -100,9 +100,9 @@ class ProfiledTracker(tracker.Tracker):
         super()._make_filter(x0)
         inner = self._step
 
-        def timed(key, state, tobs):
+        def timed(filt, key, state, tobs):
             t0, c0 = time.perf_counter(), time.process_time()
-            out = inner(key, state, tobs)
+            out = inner(filt, key, state, tobs)
             out[0].particles.block_until_ready()
             self.step_s.append(time.perf_counter() - t0)
             self.step_cpu.append(time.process_time() - c0)
