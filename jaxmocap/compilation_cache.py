@@ -1,10 +1,9 @@
 """Persistent XLA compilation cache of the command line.
 
-Compiling a tracker step takes 10–100 s on a CPU (the ``full25`` forward kinematics alone ≈ 7 s: the product of
-exponentials is unrolled into scalar operations, which run fast vmapped but give XLA a large program). JAX can store
+Compiling a tracker step takes 5–30 s on a CPU (``benchmarks/perf/compile_time.py``). JAX can store
 compiled programs on disk and reload them when the same program — same shapes, options, JAX/XLA version and XLA
 flags — is compiled again, so the second ``jaxmocap track`` / ``demo`` / ``sweep`` of a configuration skips most of
-its compilation (the ``full25`` kinematics: 8.1 s → 1.0 s for the first call).
+its compilation.
 
 Directory: ``$JAXMOCAP_CACHE_DIR``, else ``$XDG_CACHE_HOME/jaxmocap/xla`` (``~/.cache/jaxmocap/xla``);
 ``JAXMOCAP_CACHE_DIR=off`` disables it. A cache directory already configured for JAX itself
