@@ -188,7 +188,7 @@ def filters(cfg: Config, sc: Scenario):
     for n in cfg.apf_particles:
         out[f"APF N={n}"] = ("APF", APF(lik.batch, delta, n, sched, **common))
     for n in cfg.hybrid_particles:
-        m = GradientMove(cfg.steps, cfg.learning_rate, "normalized", best_k=min(cfg.best_k, n))
+        m = GradientMove(cfg.steps, cfg.learning_rate, "normalised", best_k=min(cfg.best_k, n))
         out[f"hybrid N={n} k={m.best_k} S={m.steps}"] = (
             "hybrid",
             HybridAPF(lik.batch, delta, n, sched, move=m, **common),

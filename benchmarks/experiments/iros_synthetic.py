@@ -74,10 +74,10 @@ class Config(NamedTuple):
 
 
 class Obs(NamedTuple):
-    """One frame: measurement ``z (D,)``, detector output ``center (D,)`` and ``valid``, ``inv_var = 1/σ_obs²``."""
+    """One frame: measurement ``z (D,)``, detector output ``centre (D,)`` and ``valid``, ``inv_var = 1/σ_obs²``."""
 
     z: jnp.ndarray
-    center: jnp.ndarray
+    centre: jnp.ndarray
     valid: jnp.ndarray
     inv_var: jnp.ndarray
 

@@ -56,7 +56,7 @@ class APF(base.FilterBase):
     (:func:`jaxmocap.filters.base.register_filter`).
     Static: a plain ``loglik_batch(X, observation, layer)``, ``num_particles`` (per layer), the schedule's kind,
     number of layers and bisection settings, ``first_layer`` (``"dynamics"`` or ``"icondensation"``), the
-    ICONDENSATION options (``dynamics_fraction``, ``detection_fraction``, ``proposal_center``, ``weighting``),
+    ICONDENSATION options (``dynamics_fraction``, ``detection_fraction``, ``proposal_centre``, ``weighting``),
     ``resampling``, ``limit_mode``, ``circular``, ``recovery``, ``recovery_widen``.
     """
 
@@ -68,7 +68,7 @@ class APF(base.FilterBase):
     detection_std: jnp.ndarray | None = None
     dynamics_fraction: float = 0.5
     detection_fraction: float = 0.4
-    proposal_center: Callable | None = None
+    proposal_centre: Callable | None = None
     weighting: str = "mixture"
 
     def __post_init__(self):

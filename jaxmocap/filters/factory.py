@@ -37,7 +37,7 @@ __all__ = [
 
 #: The gradient move of ``--filter hybrid``: S = 3 normalised steps of one diffusion std on the k = 5 best distinct
 #: particles per layer (the configuration of ``benchmarks/results/hybrid_vs_apf.md``).
-HYBRID_MOVE = dict(steps=3, learning_rate=1.0, optimizer="normalized", best_k=5)
+HYBRID_MOVE = dict(steps=3, learning_rate=1.0, optimizer="normalised", best_k=5)
 
 
 def partition_groups(model: body_mod.BodyModel) -> tuple[tuple[int, ...], ...]:
@@ -119,7 +119,7 @@ def make_filter(
     and choose β by Deutscher's survival-rate rule (``survival_target``), except ``m-apf`` (the thesis' single correction,
     :func:`jaxmocap.filters.annealing.corrected_beta`). ``fbapf*`` differ from ``apf`` only in the likelihood's per-layer
     cue weights (built by the caller). ``icondensation`` / ``iapf`` draw part of their particles around
-    ``observation.center`` (when ``observation.valid``) and from the prior ``N(prior_mean, prior_std²)``.
+    ``observation.centre`` (when ``observation.valid``) and from the prior ``N(prior_mean, prior_std²)``.
     ``partitioned`` / ``hierarchical`` split the DOFs by :func:`partition_groups`; ``num_particles`` is one count
     for every partition or a sequence of one count per partition (Li & Kulić on ``full25``: torso 1000, head 200,
     each arm and leg 350; the other filters take an int). ``hybrid`` is the APF with
@@ -136,7 +136,7 @@ def make_filter(
     common = dict(lower=model.lower, upper=model.upper, circular=circular)
     L = int(num_layers)
     scales = tuple(0.25 ** (l / (L - 1)) for l in range(L)) if L > 1 else (1.0,)
-    centre = lambda o: (o.center, o.valid)
+    centre = lambda o: (o.centre, o.valid)
     prior = dict(prior_mean=jnp.asarray(prior_mean, dt), prior_std=jnp.asarray(prior_std, dt))
     if name == "sir":
         return SIR(loglik, std, num_particles, **common)
@@ -145,7 +145,7 @@ def make_filter(
             loglik,
             std,
             num_particles=num_particles,
-            proposal_center=centre,
+            proposal_centre=centre,
             **prior,
             **common,
         )
@@ -173,7 +173,7 @@ def make_filter(
             num_particles,
             sched,
             first_layer="icondensation",
-            proposal_center=centre,
+            proposal_centre=centre,
             **prior,
             **common,
         )

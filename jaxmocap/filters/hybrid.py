@@ -17,7 +17,7 @@ of one unit is one standard deviation of the layer's diffusion in every entry. W
 receives the gradient of the loss ``−ℓ_l`` in ``u``, ``−(Δ · s_l) ⊙ g``, and its update ``δu`` moves the particle to
 ``limits(x + (Δ · s_l) ⊙ δu)``. The optimiser is vmapped over particles, so its state and any normalisation are per
 particle. Built-in choices (``optimizer``): ``"adam"`` (``optax.adam``), ``"sgd"`` (``optax.sgd``) and
-``"normalized"`` (steps of fixed length ``learning_rate`` along ``−∇_u``, i.e. normalised gradient ascent); any
+``"normalised"`` (steps of fixed length ``learning_rate`` along ``−∇_u``, i.e. normalised gradient ascent); any
 ``optax.GradientTransformation`` is accepted.
 
 A deterministic move followed by the usual weights ``∝ p^β`` is, like the annealing layers themselves, a search
@@ -54,10 +54,10 @@ from jaxmocap.likelihood.gradients import batch_value_and_grad
 
 __all__ = ["DEFAULT_REFINE", "OPTIMIZERS", "GradientMove", "HybridAPF", "gradient_ascent", "make_optimizer"]
 
-OPTIMIZERS = ("adam", "sgd", "normalized")
+OPTIMIZERS = ("adam", "sgd", "normalised")
 
 
-def _normalized_steps(learning_rate: float) -> optax.GradientTransformation:
+def _normalised_steps(learning_rate: float) -> optax.GradientTransformation:
     """Updates ``−lr · g / ‖g‖`` (zero for a zero gradient): a fixed step length along the descent direction."""
 
     def init(params):
@@ -84,8 +84,8 @@ def make_optimizer(
         return optax.adam(learning_rate)
     if name == "sgd":
         return optax.sgd(learning_rate)
-    if name == "normalized":
-        return _normalized_steps(learning_rate)
+    if name == "normalised":
+        return _normalised_steps(learning_rate)
     raise ValueError(
         f"unknown optimizer {name!r}; choose one of {OPTIMIZERS} or pass an optax transformation"
     )
@@ -98,14 +98,14 @@ class GradientMove:
     Attributes:
       steps: optimiser steps ``S`` (each costs one gradient evaluation per moved particle).
       learning_rate: in whitened units (one unit = one standard deviation of the layer's diffusion).
-      optimizer: ``"adam"``, ``"sgd"``, ``"normalized"`` or an ``optax.GradientTransformation``.
+      optimizer: ``"adam"``, ``"sgd"``, ``"normalised"`` or an ``optax.GradientTransformation``.
       best_k: move only the ``k`` distinct particles of largest weight (None: every resampled particle).
       layers: the layer indices that move (None: all).
     """
 
     steps: int = 2
     learning_rate: float = 0.5
-    optimizer: str | optax.GradientTransformation = "normalized"
+    optimizer: str | optax.GradientTransformation = "normalised"
     best_k: int | None = None
     layers: tuple[int, ...] | None = None
 

@@ -6,7 +6,7 @@ Per frame, from the weighted set ``{x_j, w_j}`` of the previous frame (``N`` par
 
 * ``N_dyn`` particles from the dynamics ``f(x) = Σ_j w_j N(x; x_j, Δ²)`` (resample, then random walk with std Δ);
 * ``N_det`` particles from the detection-driven density ``g(x) = N(x; x^D, Δ_D²)`` around the configuration ``x^D``
-  given for this frame (``proposal_center(observation) -> (x^D (D,), valid)``); when ``valid`` is False these slots
+  given for this frame (``proposal_centre(observation) -> (x^D (D,), valid)``); when ``valid`` is False these slots
   are drawn from the dynamics instead (``N_dyn`` becomes ``N_dyn + N_det`` in ``q``);
 * ``N_prior`` particles from the prior ``p0(x) = N(x; x_init, Σ0)`` (diagonal, std ``prior_std``);
 * all of them through the joint limits.
@@ -26,7 +26,7 @@ the bounds). ``f`` costs one ``(N, N)`` product of whitened states
 
 The likelihood is batched: ``loglik_batch(X (N, D), observation, layer) -> (N,)`` (``layer``:
 :func:`jaxmocap.filters.base.single_layer`). By default the observation must have the
-attributes ``center`` (``(D,)``) and ``valid`` (bool scalar), e.g. a NamedTuple that also carries the image data.
+attributes ``centre`` (``(D,)``) and ``valid`` (bool scalar), e.g. a NamedTuple that also carries the image data.
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ __all__ = [
     "Info",
     "State",
     "counts",
-    "default_proposal_center",
+    "default_proposal_centre",
     "importance_sample",
     "propose",
 ]
@@ -53,9 +53,9 @@ __all__ = [
 WEIGHTINGS = ("mixture", "isard_blake")
 
 
-def default_proposal_center(observation):
-    """``(observation.center, observation.valid)``."""
-    return observation.center, observation.valid
+def default_proposal_centre(observation):
+    """``(observation.centre, observation.valid)``."""
+    return observation.centre, observation.valid
 
 
 def counts(num_particles: int, dynamics_fraction: float, detection_fraction: float) -> tuple[int, int, int]:
@@ -74,7 +74,7 @@ def importance_sample(
     num_particles: int,
     split: tuple[int, int, int],
     dynamics_std: jnp.ndarray,
-    center: jnp.ndarray,
+    centre: jnp.ndarray,
     valid: jnp.ndarray,
     detection_std: jnp.ndarray,
     prior_mean: jnp.ndarray,
@@ -105,13 +105,13 @@ def importance_sample(
     # the schemes return ancestors in index order: shuffle them so that the first N_dyn slots are a draw from f
     selected = jax.random.permutation(k_perm, base.resample(scheme, k_sel, particles, log_weights, n)[0])
     from_dyn = selected + dynamics_std * jax.random.normal(k_dyn, (n, particles.shape[1]), dtype)
-    from_det = center + detection_std * jax.random.normal(k_det, (n, particles.shape[1]), dtype)
+    from_det = centre + detection_std * jax.random.normal(k_det, (n, particles.shape[1]), dtype)
     from_prior = prior_mean + prior_std * jax.random.normal(k_prior, (n, particles.shape[1]), dtype)
     X = jnp.where(is_prior[:, None], from_prior, jnp.where(is_det[:, None], from_det, from_dyn))
     X = base.apply_limits(X, lower, upper, limit_mode)
 
     log_f = base.gaussian_mixture_logpdf(X, particles, base.normalise(log_weights)[0], dynamics_std)
-    log_g = base.gaussian_logpdf(X, center, detection_std)
+    log_g = base.gaussian_logpdf(X, centre, detection_std)
     if weighting == "isard_blake":
         return X, jnp.where(is_det, log_f - log_g, 0.0)
     log_p0 = base.gaussian_logpdf(X, prior_mean, prior_std)
@@ -131,9 +131,9 @@ def importance_sample(
 
 def propose(filt, key: jax.Array, state: State, observation, dynamics_std: jnp.ndarray):
     """:func:`importance_sample` for a filter with the ICONDENSATION fields (``num_particles``, the fractions,
-    ``proposal_center``, ``detection_std`` (None: ``dynamics_std``), the prior, ``weighting``, resampling and
+    ``proposal_centre``, ``detection_std`` (None: ``dynamics_std``), the prior, ``weighting``, resampling and
     limits) from the weighted set ``state``, the dynamics diffusing by ``dynamics_std``."""
-    center, valid = (filt.proposal_center or default_proposal_center)(observation)
+    centre, valid = (filt.proposal_centre or default_proposal_centre)(observation)
     det_std = dynamics_std if filt.detection_std is None else filt.detection_std
     n = filt.num_particles
     return importance_sample(
@@ -143,7 +143,7 @@ def propose(filt, key: jax.Array, state: State, observation, dynamics_std: jnp.n
         n,
         counts(n, filt.dynamics_fraction, filt.detection_fraction),
         dynamics_std,
-        jnp.asarray(center, state.particles.dtype),
+        jnp.asarray(centre, state.particles.dtype),
         jnp.asarray(valid, bool),
         det_std,
         filt.prior_mean,
@@ -163,7 +163,7 @@ class ICondensation(base.FilterBase):
     Arrays (traced): ``diffusion_std (D,)`` (Δ, the dynamics), ``prior_mean (D,)`` (x_init), ``prior_std (D,)``
     (Σ0^{1/2}), ``detection_std (D,)`` (Δ_D; None → Δ), ``lower, upper`` (or None).
     Static: ``loglik_batch`` (data when it is a pytree), ``num_particles``, ``dynamics_fraction`` (α), ``detection_fraction`` (β),
-    ``proposal_center`` (None → :func:`default_proposal_center`), ``weighting``, ``resampling``, ``limit_mode``,
+    ``proposal_centre`` (None → :func:`default_proposal_centre`), ``weighting``, ``resampling``, ``limit_mode``,
     ``circular``, ``recovery``, ``recovery_widen`` (as in :class:`jaxmocap.filters.sir.SIR`).
     """
 
@@ -173,7 +173,7 @@ class ICondensation(base.FilterBase):
     detection_std: jnp.ndarray | None = None
     dynamics_fraction: float = 0.5
     detection_fraction: float = 0.4
-    proposal_center: Callable | None = None
+    proposal_centre: Callable | None = None
     weighting: str = "mixture"
 
     def __post_init__(self):

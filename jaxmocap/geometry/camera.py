@@ -343,10 +343,10 @@ def camera_centres(rig: Rig) -> jnp.ndarray:
     return -jnp.einsum("vji,vj->vi", R, t)
 
 
-def projection_matrices(rig: Rig, normalized: bool = False) -> jnp.ndarray:
-    """``(V, 3, 4)`` matrices ``K [R | t]`` (or ``[R | t]`` if ``normalized``), without distortion."""
+def projection_matrices(rig: Rig, normalised: bool = False) -> jnp.ndarray:
+    """``(V, 3, 4)`` matrices ``K [R | t]`` (or ``[R | t]`` if ``normalised``), without distortion."""
     Rt = jnp.concatenate([jnp.asarray(rig.R), jnp.asarray(rig.t)[:, :, None]], -1)
-    if normalized:
+    if normalised:
         return Rt
     return jnp.einsum("vij,vjk->vik", jnp.asarray(rig.K), Rt)
 
@@ -356,11 +356,11 @@ def projection_matrices(rig: Rig, normalized: bool = False) -> jnp.ndarray:
 
 
 def undistort_points(
-    rig: Rig, uv, fixed_point_iterations: int = 5, newton_iterations: int = 3, normalized: bool = True
+    rig: Rig, uv, fixed_point_iterations: int = 5, newton_iterations: int = 3, normalised: bool = True
 ) -> jnp.ndarray:
     """Remove lens distortion from pixel observations. ``uv (..., V, 2) -> (..., V, 2)``.
 
-    Returns normalised coordinates ``(x_c/z_c, y_c/z_c)`` (or, with ``normalized=False``, the ideal pinhole pixels
+    Returns normalised coordinates ``(x_c/z_c, y_c/z_c)`` (or, with ``normalised=False``, the ideal pinhole pixels
     ``K [a, b, 1]``). The distorted normalised point ``(a_d, b_d) = K⁻¹ [u, v, 1]`` is inverted through the
     distortion model by ``fixed_point_iterations`` of OpenCV's iteration (``cv::undistortPoints``: ``a ← (a_d −
     Δa(a, b)) / L(r²)``, 5 by default as OpenCV's default criteria), then ``newton_iterations`` Newton steps on
@@ -398,7 +398,7 @@ def undistort_points(
         det = j11 * j22 - j12 * j21
         a = a - (j22 * fa - j12 * fb) / det
         b = b - (j11 * fb - j21 * fa) / det
-    if normalized:
+    if normalised:
         return jnp.stack([a, b], -1)
     return jnp.stack([fx * a + s * b + cx, fy * b + cy], -1)
 
@@ -415,7 +415,7 @@ def triangulate(rig: Rig, uv, weights=None) -> jnp.ndarray:
     uv = _float_points(uv)
     dt = uv.dtype
     ab = undistort_points(rig, uv)
-    P = projection_matrices(rig, normalized=True).astype(dt)  # (V, 3, 4)
+    P = projection_matrices(rig, normalised=True).astype(dt)  # (V, 3, 4)
     if weights is None:
         w = jnp.ones(uv.shape[:-1], dt)
     else:

@@ -82,7 +82,7 @@ def _safe_norm(v: jnp.ndarray, eps: float = _EPS) -> tuple[jnp.ndarray, jnp.ndar
     return jnp.sqrt(jnp.where(ok, sq, 1.0)), ok
 
 
-def _safe_normalize(v: jnp.ndarray, fallback: jnp.ndarray) -> jnp.ndarray:
+def _safe_normalise(v: jnp.ndarray, fallback: jnp.ndarray) -> jnp.ndarray:
     n, ok = _safe_norm(v)
     return jnp.where(ok[..., None], v / n[..., None], fallback)
 

@@ -28,10 +28,10 @@ __all__ = ["FeatureBuilder", "TrackObservation"]
 
 class TrackObservation(NamedTuple):
     """What the filter step sees of one frame: the image ``Observation`` (with the silhouette samples of the
-    coverage cue when it is used) and the proposal centre ``center (D,)`` with ``valid``."""
+    coverage cue when it is used) and the proposal centre ``centre (D,)`` with ``valid``."""
 
     image: Observation
-    center: jnp.ndarray
+    centre: jnp.ndarray
     valid: jnp.ndarray
 
 

@@ -223,7 +223,7 @@ class TrackingLoop:
                 no_person = masks is not None and not np.any(np.sum(masks, axis=(1, 2)) >= 20)
                 centre = setup.detection(fd, masks, loss.last_good)
                 if centre is not None:
-                    tobs = tobs._replace(center=jnp.asarray(centre, jnp.float32), valid=jnp.asarray(True))
+                    tobs = tobs._replace(centre=jnp.asarray(centre, jnp.float32), valid=jnp.asarray(True))
                 # damped constant-velocity prediction of the root translation
                 hist = loss.hist
                 if len(hist) == 2 and hist[0][0] == t - 2 and hist[1][0] == t - 1 and setup.velocity > 0:

@@ -50,7 +50,7 @@ class Obs(NamedTuple):
     ``dead_layer``: the annealing layer / partition that is dead (-1: all of them when ``dead`` is set)."""
 
     z: jnp.ndarray
-    center: jnp.ndarray
+    centre: jnp.ndarray
     valid: jnp.ndarray
     dead: jnp.ndarray
     dead_layer: jnp.ndarray

@@ -96,7 +96,7 @@ def test_sgd_step_matches_the_closed_form():
     assert lls.shape == (3, 5)
     np.testing.assert_allclose(np.asarray(lls[0]), np.asarray(gaussian_loglik(X, Obs(TARGET), 0)), rtol=1e-6)
     # the normalised steps have length η (in whitened units) whatever the gradient's size
-    one = GradientMove(steps=1, learning_rate=0.5, optimizer="normalized")
+    one = GradientMove(steps=1, learning_rate=0.5, optimizer="normalised")
     moved1, _ = gradient_ascent(gaussian_loglik, X, Obs(TARGET), 0, scale, one)
     np.testing.assert_allclose(np.linalg.norm(np.asarray((moved1 - X) / scale), axis=-1), 0.5, rtol=1e-5)
 
@@ -145,7 +145,7 @@ def test_gradient_moves_beat_the_apf_on_a_static_target(apf_runs):
     16 seeds below half the APF's; the standard errors of the two means (≈ 0.0025 and 0.0003) are an order of
     magnitude smaller than that margin. And below σ / 4 in absolute terms, which the APF's mean exceeds."""
     apf = _settled_error(apf_runs[0])
-    move = GradientMove(steps=3, learning_rate=1.0, optimizer="normalized", best_k=5)
+    move = GradientMove(steps=3, learning_rate=1.0, optimizer="normalised", best_k=5)
     hyb = _settled_error(_track(HybridAPF(gaussian_loglik, STD, N, SCHED, move=move))[0])
     print(
         f"settled RMS error: APF {apf.mean():.4f} ± {apf.std():.4f}, hybrid {hyb.mean():.4f} ± {hyb.std():.4f}"

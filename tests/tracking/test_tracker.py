@@ -34,7 +34,7 @@ from jaxmocap.tracking.options import (
 
 class _Toy(NamedTuple):
     target: jnp.ndarray
-    center: jnp.ndarray
+    centre: jnp.ndarray
     valid: jnp.ndarray
 
 
