@@ -36,6 +36,7 @@ from jaxmocap.errors import MocapInputError
 from jaxmocap.geometry import body as body_mod
 from jaxmocap.geometry import camera
 from jaxmocap.io.calibration import load_calibration
+from jaxmocap.io.openpose import BODY_25B_INDEX
 from jaxmocap.io.sources import BadFrame, FrameData
 from jaxmocap.io.trc import load_trc
 
@@ -48,23 +49,28 @@ __all__ = [
     "subject_keypoints",
 ]
 
-#: BODY_25B keypoint index of each ``.trc`` marker (Pose2Sim's BODY_25B skeleton).
+#: BODY_25B keypoint index of each ``.trc`` marker (Pose2Sim's BODY_25B skeleton names the upper neck ``Neck``
+#: and the head top ``Head``; the others as OpenPose does).
+_TRC_NAME = {"UpperNeck": "Neck", "HeadTop": "Head"}
 KEYPOINT_OF_TRC = {
-    "Nose": 0,
-    "LShoulder": 5,
-    "RShoulder": 6,
-    "LElbow": 7,
-    "RElbow": 8,
-    "LWrist": 9,
-    "RWrist": 10,
-    "LHip": 11,
-    "RHip": 12,
-    "LKnee": 13,
-    "RKnee": 14,
-    "LAnkle": 15,
-    "RAnkle": 16,
-    "Neck": 17,
-    "Head": 18,
+    _TRC_NAME.get(name, name): BODY_25B_INDEX[name]
+    for name in (
+        "Nose",
+        "LShoulder",
+        "RShoulder",
+        "LElbow",
+        "RElbow",
+        "LWrist",
+        "RWrist",
+        "LHip",
+        "RHip",
+        "LKnee",
+        "RKnee",
+        "LAnkle",
+        "RAnkle",
+        "UpperNeck",
+        "HeadTop",
+    )
 }
 
 #: ``.trc`` markers averaged for each evaluation joint (:data:`jaxmocap.geometry.body.EVAL_JOINTS`). ``root`` is the middle
