@@ -36,7 +36,7 @@ from jaxmocap.errors import MocapInputError
 from jaxmocap.geometry import body as body_mod
 from jaxmocap.geometry import camera
 from jaxmocap.io.calibration import load_calibration
-from jaxmocap.io.openpose import BODY_25B_INDEX
+from jaxmocap.io.openpose import BODY_25B_INDEX, BODY_25B_KEYPOINTS
 from jaxmocap.io.sources import BadFrame, FrameData
 from jaxmocap.io.trc import load_trc
 
@@ -53,25 +53,8 @@ __all__ = [
 #: and the head top ``Head``; the others as OpenPose does).
 _TRC_NAME = {"UpperNeck": "Neck", "HeadTop": "Head"}
 KEYPOINT_OF_TRC = {
-    _TRC_NAME.get(name, name): BODY_25B_INDEX[name]
-    for name in (
-        "Nose",
-        "LShoulder",
-        "RShoulder",
-        "LElbow",
-        "RElbow",
-        "LWrist",
-        "RWrist",
-        "LHip",
-        "RHip",
-        "LKnee",
-        "RKnee",
-        "LAnkle",
-        "RAnkle",
-        "UpperNeck",
-        "HeadTop",
-    )
-}
+    _TRC_NAME.get(name, name): BODY_25B_INDEX[name] for name in ("Nose", *BODY_25B_KEYPOINTS[5:19])
+}  # the nose, then the shoulders to the head top
 
 #: ``.trc`` markers averaged for each evaluation joint (:data:`jaxmocap.geometry.body.EVAL_JOINTS`). ``root`` is the middle
 #: of the hips; ``head`` (the model's head centre) is approximated by the middle of the head top and the nose.
