@@ -131,6 +131,16 @@ class FilterBase:
             self.limit_mode, self.recovery,
         )  # fmt: skip
 
+    def _weigh_once(self, key, X, log_prior, observation, previous_estimate) -> tuple[State, Info]:
+        """A frame of a filter without layers after its proposal: weights ``log_prior + ll(X)`` normalised, then
+        :meth:`_finish` (recovery, estimate) — ``(State, Info)`` with one layer of statistics."""
+        ll = mask_loglik(self.loglik_batch(X, observation, single_layer(X.dtype)))
+        log_w, ok = normalise(log_prior + ll)
+        stats = layer_stats(ll, log_w, 1.0)
+        X, log_w, estimate, best = self._finish(key, X, log_w, ok, previous_estimate)
+        info = Info(estimate, best, jax.tree_util.tree_map(lambda a: a[None], stats), ~ok)
+        return State(X, log_w, estimate), info
+
     def _finish(self, key, X, log_w, ok, previous_estimate):
         """:func:`finish` with this filter's configuration: ``(particles, log_weights, estimate, best)``."""
         return finish(

@@ -191,12 +191,7 @@ class ICondensation(base.FilterBase):
         """One frame: mixture proposal, weights ``p(z|x) f/q`` (or λ p(z|x)), estimate."""
         k_prop, k_rec = jax.random.split(key)
         X, log_corr = propose(self, k_prop, state, observation, self.diffusion_std)
-        ll = base.mask_loglik(self.loglik_batch(X, observation, base.single_layer(X.dtype)))
-        log_w, ok = base.normalise(ll + log_corr)
-        stats = base.layer_stats(ll, log_w, 1.0)
-        X, log_w, estimate, best = self._finish(k_rec, X, log_w, ok, state.estimate)
-        info = Info(estimate, best, jax.tree_util.tree_map(lambda a: a[None], stats), ~ok)
-        return State(X, log_w, estimate), info
+        return self._weigh_once(k_rec, X, log_corr, observation, state.estimate)
 
 
 base.register_filter(

@@ -56,12 +56,7 @@ class SIR(base.FilterBase):
             X = jnp.where(keep, state.particles, X)
             prior_lw = jnp.where(keep, state.log_weights, prior_lw)
         X = base.diffuse(k_move, X, self.diffusion_std, self.lower, self.upper, self.limit_mode)
-        ll = base.mask_loglik(self.loglik_batch(X, observation, base.single_layer(X.dtype)))
-        log_w, ok = base.normalise(prior_lw + ll)
-        stats = base.layer_stats(ll, log_w, 1.0)
-        X, log_w, estimate, best = self._finish(k_rec, X, log_w, ok, state.estimate)
-        info = Info(estimate, best, jax.tree_util.tree_map(lambda a: a[None], stats), ~ok)
-        return State(X, log_w, estimate), info
+        return self._weigh_once(k_rec, X, prior_lw, observation, state.estimate)
 
 
 base.register_filter(SIR, ("diffusion_std", "lower", "upper"))
