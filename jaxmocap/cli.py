@@ -174,20 +174,6 @@ def _open_source(args):
     return sources.SequenceSource(args.input)
 
 
-def _import_parsec_model(args) -> None:
-    """Register PARSEC's body model (``parsec31``) when the options name it, directly or through a body file."""
-    wants = args.model == "parsec31"
-    if not wants and args.body is not None:
-        from jaxmocap.geometry import body
-
-        try:
-            wants = body.load_body_file(args.body)[0] == "parsec31"
-        except MocapInputError:
-            wants = False  # the tracker reports the bad body file
-    if wants:
-        import jaxmocap.parsec  # noqa: F401
-
-
 def _make_run(source, args, options):
     """The tracking run for ``source``: bodytrack's configuration for a PARSEC sequence, else the Tracker."""
     from jaxmocap.parsec.inputs import ParsecSource
@@ -197,7 +183,6 @@ def _make_run(source, args, options):
         from jaxmocap.parsec.track import ParsecTracker
 
         return ParsecTracker(source, args.out, options, quiet=args.quiet)
-    _import_parsec_model(args)
     return tracker.Tracker(source, args.out, options, quiet=args.quiet)
 
 
