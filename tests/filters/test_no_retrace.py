@@ -165,12 +165,8 @@ def test_likelihood_weights_and_lambda_are_data(two_cues):
 def test_filter_with_pytree_likelihood_does_not_retrace(two_cues):
     """An APF whose likelihood is a ``Partial`` over a Likelihood: new cue weights, λ and β reuse the step."""
     model, lik, obs = two_cues
-    traces = []
-
-    @jax.jit
-    def run(filt, key, state, observation):
-        traces.append(1)
-        return filt.step(key, state, observation)
+    counted = _Counted()
+    run = counted.fn
 
     std = jnp.full(model.num_dofs, 0.02)
     f = APF(jax.tree_util.Partial(_lik_batch, lik), std, 16, Schedule.fixed((0.5, 1.0), (1.0, 0.5)))
@@ -183,12 +179,12 @@ def test_filter_with_pytree_likelihood_does_not_retrace(two_cues):
         schedule=Schedule.fixed((0.2, 0.8), (1.0, 0.5)),
     )
     s1, i1 = run(f2, jax.random.key(1), state, obs)
-    assert len(traces) == 1
+    assert counted.traces == 1
     np.testing.assert_array_equal(_betas(i1), np.float32([0.2, 0.8]))
     assert not np.array_equal(np.asarray(s0.log_weights), np.asarray(s1.log_weights))
     f8 = dataclasses.replace(f, num_particles=8)
     run(f8, jax.random.key(1), f8.init(jax.random.key(0), model.rest_pose), obs)
-    assert len(traces) == 2
+    assert counted.traces == 2
 
 
 class _TrackObs(NamedTuple):
@@ -199,12 +195,8 @@ def test_tracker_likelihood_parameters_are_data(two_cues):
     """The tracker's likelihood (:func:`observation_loglik`) in a filter: new cue weights or λ reuse the step (its
     geometry stays a constant of the program); a new likelihood geometry is another program."""
     model, lik, obs = two_cues
-    traces = []
-
-    @jax.jit
-    def run(filt, key, state, observation):
-        traces.append(1)
-        return filt.step(key, state, observation)
+    counted = _Counted()
+    run = counted.fn
 
     ol = observation_loglik(lik, num_layers=2)
     f = APF(ol, jnp.full(model.num_dofs, 0.02), 16, Schedule.fixed((0.5, 1.0), (1.0, 0.5)))
@@ -215,7 +207,7 @@ def test_tracker_likelihood_parameters_are_data(two_cues):
     s1, _ = run(
         dataclasses.replace(f, loglik_batch=dataclasses.replace(ol, lik=lik2)), jax.random.key(1), state, tobs
     )
-    assert len(traces) == 1
+    assert counted.traces == 1
     assert not np.array_equal(np.asarray(s0.log_weights), np.asarray(s1.log_weights))
     # the same parameters give the same result as a likelihood with every leaf traced
     s2, _ = run(
@@ -234,19 +226,19 @@ def test_tracker_likelihood_parameters_are_data(two_cues):
         state,
         tobs,
     )
-    assert len(traces) == 3  # the Partial above, then another geometry (new arrays held as constants)
+    assert counted.traces == 3  # the Partial above, then another geometry (new arrays held as constants)
     # params_data=False (the gradient filters): the parameters are constants, a new value compiles anew
     const = observation_loglik(lik, num_layers=2, params_data=False)
     run(dataclasses.replace(f, loglik_batch=const), jax.random.key(1), state, tobs)
     run(dataclasses.replace(f, loglik_batch=const), jax.random.key(1), state, tobs)
-    assert len(traces) == 4
+    assert counted.traces == 4
     run(
         dataclasses.replace(f, loglik_batch=dataclasses.replace(const, lik=lik2)),
         jax.random.key(1),
         state,
         tobs,
     )
-    assert len(traces) == 5
+    assert counted.traces == 5
 
 
 def _lik_batch_image(lik, X, tobs, layer):
