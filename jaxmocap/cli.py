@@ -7,6 +7,7 @@ Subcommands:
 * ``jaxmocap calib convert IN OUT.toml`` — write it as the canonical Pose2Sim-layout TOML.
 * ``jaxmocap synth --motion CLIP --rig {stereo,frontal-lateral,ring4,FILE} --out DIR [...]`` — render a synthetic
   multi-view sequence of a mocap clip with exact ground truth (:func:`jaxmocap.synth.generate.synthesize`).
+* ``jaxmocap plot RUN`` — draw a tracking run (trajectories, 3D skeleton, per-frame quality) as PNG files.
 * ``jaxmocap sweep SEQ ... --filters F,G --seeds A:B --out results.csv`` — sequences × filters × seeds, the
   seeds in one compiled call spread over the available devices, into one table (:mod:`jaxmocap.tracking.sweep`).
 
@@ -23,6 +24,7 @@ import numpy as np
 
 from jaxmocap import __version__, choices
 from jaxmocap.errors import MocapInputError
+from jaxmocap.tracking.smoothing import DEFAULT_CUTOFF_HZ, DEFAULT_SMOOTH
 
 
 def _calib_show(args) -> int:
@@ -127,9 +129,19 @@ def _print_summary(summary: dict, out) -> None:
     print(f"track lost in {s['lost_frames']} frame(s), {s['reinitialisations']} re-initialisation(s)")
     if s.get("mean_error_mm") is not None:
         print(f"mean joint error against the ground truth: {s['mean_error_mm']:.1f} mm")
-    files = ["poses.npz", "poses.csv", "diagnostics.json", "track.bvh"]
-    files += [pathlib.Path(p).name for p in s.get("overlays", [])]
+    if s.get("mean_error_smoothed_mm") is not None:
+        print(f"mean joint error of the exported track ({s['smooth']}): {s['mean_error_smoothed_mm']:.1f} mm")
+    files = ["poses.npz", "poses.csv", "diagnostics.json"]
+    exports = [f"track.bvh ({s['bvh_units']}, y up)" if f == "track.bvh" else f for f in s.get("exports", [])]
+    files += exports + [pathlib.Path(p).name for p in s.get("overlays", [])]
+    if s.get("plots"):
+        files.append(f"plots/ ({', '.join(s['plots'])})")
     print(f"wrote {', '.join(files)} to {out}")
+    if exports:
+        gaps = s.get("interpolated_frames", 0)
+        print(
+            f"exported track: smoothing {s['smooth']}, {gaps} frame(s) interpolated (raw estimates in poses.npz)"
+        )
 
 
 def _track_options(args):
@@ -151,6 +163,8 @@ def _track_options(args):
         overlay=args.overlay,
         resume=args.resume,
         overwrite=args.overwrite,
+        smooth=args.smooth,
+        bvh_units=args.bvh_units,
     )
 
 
@@ -238,6 +252,27 @@ def evaluate_runs(pred: list, gt: str, out: str | None = None, quiet: bool = Fal
         viz.plot_error_over_time(report, f"{stem}_error_over_time.png")
         viz.plot_per_joint(report, f"{stem}_per_joint.png")
     return report
+
+
+def _smooth_spec(text: str) -> str:
+    """``--smooth``: checked here (the cut-off against the frame rate when the input is open)."""
+    from jaxmocap.tracking.smoothing import parse_smooth
+
+    try:
+        parse_smooth(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+    return text
+
+
+def _plot(args) -> int:
+    from jaxmocap.eval import plots
+
+    if not pathlib.Path(args.run).is_dir():
+        raise MocapInputError(args.run, "no such folder")
+    paths = plots.plot_run(args.run, args.out)
+    print(f"wrote {', '.join(str(p) for p in paths)}")
+    return 0
 
 
 def _eval(args) -> int:
@@ -426,7 +461,9 @@ def _add_tracking_commands(sub) -> None:
         "track",
         help="track a person in a sequence folder or synchronised videos",
         description="Track a sequence folder (synthesis format) or synchronised videos with their calibration; "
-        "writes poses.npz, poses.csv, diagnostics.json and track.bvh to --out after every frame.",
+        "writes poses.npz, poses.csv and diagnostics.json to --out after every frame, and at the end the exported "
+        "track (smoothed, gaps filled): poses_smoothed.npz, track.bvh, poses.trc (OpenSim / Pose2Sim), poses.c3d "
+        "and plots/.",
     )
     tr.add_argument(
         "input", nargs="?", help="sequence folder or PARSEC bodytrack sequence folder (or use --videos)"
@@ -480,12 +517,35 @@ def _add_tracking_commands(sub) -> None:
     tr.add_argument(
         "--overlay",
         action="store_true",
-        help="also write an MP4 per view with the model drawn over the images",
+        help="also write an H.264 MP4 per view with the model drawn over the images, and a montage PNG",
+    )
+    tr.add_argument(
+        "--smooth",
+        type=_smooth_spec,
+        default=DEFAULT_SMOOTH,
+        metavar="butterworth[:HZ]|none",
+        help="smoothing of the exported track (poses_smoothed.npz, track.bvh, poses.trc, poses.c3d): zero-phase "
+        f"Butterworth low-pass, order 4, cut-off HZ (default {DEFAULT_CUTOFF_HZ:g}), or none; lost and "
+        "skipped frames are interpolated either way; poses.npz keeps the raw estimates",
+    )
+    tr.add_argument(
+        "--bvh-units", choices=("cm", "m"), default="cm", help="length unit of track.bvh (default cm)"
     )
     tr.add_argument("--resume", action="store_true", help="continue an interrupted run in --out")
     tr.add_argument("--overwrite", action="store_true", help="replace a previous run in --out")
     tr.add_argument("--quiet", action="store_true", help="no progress bar or summary")
     tr.set_defaults(func=_track)
+
+    pl = sub.add_parser(
+        "plot",
+        help="draw a tracking run: joint trajectories, 3D skeleton, per-frame quality (PNG)",
+        description="Draw the joint trajectories, a 3D skeleton of selected frames and the per-frame quality "
+        "(log-likelihood, survival, lost frames, re-initialisations) of a tracking output folder as PNG "
+        "files (also drawn at the end of every run).",
+    )
+    pl.add_argument("run", help="tracking output folder")
+    pl.add_argument("--out", help="folder of the pictures (default RUN/plots)")
+    pl.set_defaults(func=_plot)
 
     ev = sub.add_parser(
         "eval",

@@ -168,7 +168,9 @@ class TrackOptions:
     random walk only); ``diffusion_scale``: multiplies :func:`diffusion_std`; ``survival_target``: α of
     Deutscher's rule; ``loss_*``/``reinit_widen``: track loss (module docstring); ``on_bad_frame``: ``skip`` or
     ``stop``; ``overlay``: MP4 per view; ``resume``/``overwrite``: what to do with a previous run in the output
-    folder; ``fsync``: ``fsync`` every rewrite.
+    folder; ``fsync``: ``fsync`` every rewrite; ``smooth`` (``butterworth[:CUTOFF_HZ]`` or ``none``) and
+    ``bvh_units`` (``cm`` or ``m``): the exported track (:mod:`jaxmocap.tracking.outputs`; not part of
+    :meth:`identity`: a resumed run may export differently).
     """
 
     model: str | None = None
@@ -195,6 +197,8 @@ class TrackOptions:
     resume: bool = False
     overwrite: bool = False
     fsync: bool = False
+    smooth: str = "butterworth"
+    bvh_units: str = "cm"
 
     def identity(self) -> dict:
         """The options a resumed run must share with the run it continues."""

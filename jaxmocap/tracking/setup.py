@@ -42,6 +42,7 @@ from jaxmocap.tracking.options import (
     diffusion_std,
     parse_cues,
 )
+from jaxmocap.tracking.outputs import check_export_options
 from jaxmocap.tracking.progress import warn
 
 __all__ = ["ObservationLoglik", "TrackSetup", "frame_range", "observation_loglik"]
@@ -204,6 +205,7 @@ class TrackSetup:
         if o.on_bad_frame not in ("skip", "stop"):
             raise ValueError("on_bad_frame must be 'skip' or 'stop'")
         self.frames = frame_range(o.frames, source.num_frames)
+        check_export_options(o.smooth, o.bvh_units, source.fps)
         self.model = build_model(o.model, o.body, source.body_path)
         cues = parse_cues(o.cues) or default_cues(self.model.name, source.has_depth, source.has_keypoints)
         for name, _ in cues:
