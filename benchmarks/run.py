@@ -262,6 +262,22 @@ SCRIPTS: dict[str, Script] = {
         writes=("parsec_overlay.png",),
         env="JAX_PLATFORMS=cpu",
     ),
+    "smoothing": Script(
+        "Exported-track error with and without Butterworth smoothing (the default cut-off)",
+        "experiments/smoothing.py",
+        "--seeds 3",
+        writes=("smoothing.md",),
+    ),
+    "blender_bvh": Script(
+        "Blender's BVH importer reads track.bvh: armature joints against the run's (needs Blender)",
+        "experiments/blender_bvh.py",
+        writes=("blender_bvh.md",),
+    ),
+    "run_pictures": Script(
+        "The pictures of a tracked run: plots/ and the overlay montage",
+        "experiments/run_pictures.py",
+        writes=("run_*.png",),
+    ),
     "pose2sim_track": Script(
         "Pose2Sim demo recording tracked, against Pose2Sim's triangulation",
         "experiments/pose2sim_track.py",

@@ -184,7 +184,8 @@ def plot_quality(records: list[dict], path: str | os.PathLike) -> None:
     ax2.set_ylim(0, 1.05)
     ax2.set_ylabel("survival rate", fontsize=8)
     ax3.plot(f, ess, color="tab:purple", lw=1.2)
-    ax3.set_ylim(bottom=0)
+    top = float(np.nanmax(ess)) if np.any(np.isfinite(ess)) else 1.0
+    ax3.set_ylim(0, 1.1 * max(top, 1.0))  # a constant ESS (the APF's α·N) stays in view
     ax3.set_ylabel("effective sample size", fontsize=8)
     ax3.set_xlabel("frame")
     lost = np.asarray([bool(r.get("lost")) for r in tracked])
