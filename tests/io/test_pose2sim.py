@@ -13,7 +13,8 @@ import pytest
 from jaxmocap.errors import MocapInputError
 from jaxmocap.geometry import camera
 from jaxmocap.geometry.body import EVAL_JOINTS
-from jaxmocap.io.pose2sim import KEYPOINT_OF_TRC, Pose2SimSource, body_dimensions, reference_joints
+from jaxmocap.io.pose2sim import JOINT_OF_TRC, Pose2SimSource, reference_joints
+from jaxmocap.io.subject import body_dimensions
 from jaxmocap.tracking.options import TrackOptions
 from jaxmocap.tracking.tracker import Tracker
 
@@ -43,7 +44,7 @@ def test_reference_reprojects_onto_detections():
     rj = src.rig.to_jax(jnp.float32)
     errs = []
     for t in range(len(FRAMES)):
-        for name, k in KEYPOINT_OF_TRC.items():
+        for name, k in JOINT_OF_TRC.items():
             uv = np.asarray(camera.project(rj, jnp.asarray(markers[name][t][None], jnp.float32)))[:, 0]
             kp = src.keypoints[t, :, k]
             ok = kp[:, 2] > 0.3
@@ -62,7 +63,9 @@ def test_subject_is_the_nearest_person():
     _, markers, _ = reference_joints(DATA / "reference.trc")
     rj = src.full_rig.to_jax(jnp.float32)
     uv = np.asarray(camera.project(rj, jnp.asarray(markers["LHip"][0][None], jnp.float32)))[:, 0]
-    assert np.all(np.linalg.norm(src.keypoints_full[0, :, 11, :2] - uv, axis=-1) < 100.0)
+    assert np.all(
+        np.linalg.norm(src.keypoints_full[0, :, EVAL_JOINTS.index("left_hip"), :2] - uv, axis=-1) < 100.0
+    )
 
 
 def test_body_dimensions_plausible():
