@@ -204,7 +204,11 @@ class TrackSetup:
         if o.on_bad_frame not in ("skip", "stop"):
             raise ValueError("on_bad_frame must be 'skip' or 'stop'")
         self.frames = frame_range(o.frames, source.num_frames)
-        self.model = build_model(o.model, o.body, source.body_path)
+        #: what was assumed or converted about the input, for the user (the source's notes, then the setup's)
+        self.notes = list(getattr(source, "notes", []))
+        self.body_dimensions = self._measured_body()
+        body = None if o.body == "detections" else o.body
+        self.model = build_model(o.model, body, source.body_path, self.body_dimensions)
         cues = parse_cues(o.cues) or default_cues(self.model.name, source.has_depth, source.has_keypoints)
         for name, _ in cues:
             if name == "depth" and not source.has_depth:
@@ -229,6 +233,29 @@ class TrackSetup:
         self.num_particles = list(counts) if isinstance(n, (list, tuple)) else int(n)
         self.std = diffusion_std(self.model, source.fps) * float(o.diffusion_scale)
         self.likelihood = self._build_likelihood()
+
+    def _measured_body(self) -> dict | None:
+        """The subject's dimensions measured from the input's detections (``body = "detections"``, or no body
+        file and an input with detections), or None."""
+        o, src = self.o, self.source
+        wanted = o.body == "detections" or (o.body is None and src.body_path is None and src.has_keypoints)
+        if not wanted or o.model == "parsec31":
+            return None
+        if not src.has_keypoints:
+            raise ValueError("--body detections needs 2D keypoints (--keypoints)")
+        from jaxmocap.io.subject import body_dimensions
+
+        dims = body_dimensions(src.keypoints, src.rig)
+        if len(dims) < 6:
+            self.notes.append(
+                "too few triangulated detections to measure the subject: preset body dimensions"
+            )
+            return None
+        shown = ", ".join(
+            f"{k.replace('_length', '')} {v:.2f}" for k, v in dims.items() if k.endswith("length")
+        )
+        self.notes.append(f"body dimensions measured from the triangulated detections (m): {shown}")
+        return dims
 
     @property
     def velocity(self) -> float:
@@ -379,5 +406,6 @@ class TrackSetup:
             "frames": [self.frames[0], self.frames[-1] + 1],
             "fps": self.source.fps,
             "diffusion_std": self.std.tolist(),
+            "body_dimensions": self.body_dimensions,
             "jax": jax.__version__,
         }
