@@ -30,6 +30,9 @@ def _calib_show(args) -> int:
     from jaxmocap.io import calibration
 
     rig = calibration.load_calibration(args.file)
+    rig, note = calibration.check_units(rig, "auto", args.file)
+    if note:
+        print(f"jaxmocap: note: {note}", file=sys.stderr)
     centres = np.asarray(camera.camera_centres(rig.to_jax()))
     print(f"{rig.num_views} cameras in {args.file}")
     for v, name in enumerate(rig.names):

@@ -272,6 +272,9 @@ class VideoSource:
             self.notes += sub.notes
             self.keypoints, self.keypoint_layout = sub.keypoints, sub.layout  # (T, V, 15, 3)
         self.has_keypoints = self.keypoints is not None
+        #: no detections checked the calibration against the videos: the tracker's setup checks the camera order
+        #: with the silhouettes (:meth:`jaxmocap.tracking.setup.TrackSetup._check_camera_order`)
+        self.check_silhouettes = not self.has_keypoints
         self.depth_files = None
         if depth:
             if len(depth) != len(self.videos):

@@ -46,7 +46,9 @@ __all__ = [
     "SubjectKeypoints",
     "ViewGeometry",
     "body_dimensions",
+    "check_order",
     "check_rig",
+    "check_rig_silhouettes",
     "limb_lengths",
     "load_subject",
     "multiview_persons",
@@ -296,29 +298,41 @@ def subject_box(kp: np.ndarray | None, shape) -> np.ndarray:
 # What the detections say about the calibration
 
 
-def _pair_score(geo: ViewGeometry, cams: tuple[int, int], dets: tuple[np.ndarray, np.ndarray]) -> float:
-    """The best 2-view residual (px, the larger of the two views) over the detection pairs of two cameras."""
+def _pair_score(
+    geo: ViewGeometry,
+    cams: tuple[int, int],
+    dets: tuple[np.ndarray, np.ndarray],
+    min_joints: int = MIN_JOINTS,
+) -> float:
+    """The best 2-view residual (px, the larger of the two views) over the detection pairs of two cameras
+    (``min_joints`` joints triangulated at least): inf when every pair triangulates behind a camera, NaN when no
+    pair has enough joints."""
     a, b = cams
     if not len(dets[0]) or not len(dets[1]):
         return np.nan
     ab_a, ab_b = geo.normalise(a, dets[0]), geo.normalise(b, dets[1])
-    best = np.inf
+    best = np.nan
     for i, j in itertools.product(range(len(dets[0])), range(len(dets[1]))):
         X = geo.triangulate([a, b], np.stack([ab_a[i], ab_b[j]]))
-        if np.sum(np.all(np.isfinite(X), axis=1)) >= MIN_JOINTS:
-            best = min(best, max(geo.residual(a, X, ab_a[i]), geo.residual(b, X, ab_b[j])))
-    return best if np.isfinite(best) else np.nan
+        ok = np.all(np.isfinite(X), axis=1)
+        if ok.sum() >= min_joints:
+            r = np.concatenate(
+                [geo.joint_residuals(a, X, ab_a[i])[ok], geo.joint_residuals(b, X, ab_b[j])[ok]]
+            )
+            score = float(np.median(r)) if np.all(np.isfinite(r)) else np.inf
+            best = score if np.isnan(best) else min(best, score)
+    return best
 
 
-def _pair_table(geo: ViewGeometry, dets: list[list[np.ndarray]]) -> dict:
+def _pair_table(geo: ViewGeometry, dets: list[list[np.ndarray]], min_joints: int, orders: bool) -> dict:
     """``{(a, b, x, y): median over frames of the best 2-view residual (px) of cameras a < b seeing the
-    detections of folders x and y}``."""
+    detections of folders x and y}`` (``orders``: every x ≠ y, else x = a, y = b)."""
     V = geo.num_views
     out = {}
     for a, b in itertools.combinations(range(V), 2):
-        for x, y in itertools.permutations(range(V), 2):
-            s = [_pair_score(geo, (a, b), (d[x], d[y])) for d in dets]
-            s = [v for v in s if np.isfinite(v)]
+        for x, y in itertools.permutations(range(V), 2) if orders else [(a, b)]:
+            s = [_pair_score(geo, (a, b), (d[x], d[y]), min_joints) for d in dets]
+            s = [v for v in s if not np.isnan(v)]
             out[a, b, x, y] = float(np.median(s)) if s else np.nan
     return out
 
@@ -344,45 +358,65 @@ def limb_lengths(X: np.ndarray) -> np.ndarray:
     return np.asarray([np.linalg.norm(X[j[a]] - X[j[b]]) for a, b in pairs])
 
 
+def _sample(dets: list[list[np.ndarray]], max_frames: int) -> list[list[np.ndarray]]:
+    """Up to ``max_frames`` frames spread over those where two or more views detect someone."""
+    useful = [t for t, d in enumerate(dets) if sum(len(x) > 0 for x in d) >= 2]
+    if not useful:
+        return []
+    pick = [useful[int(i)] for i in np.round(np.linspace(0, len(useful) - 1, min(max_frames, len(useful))))]
+    return [dets[t] for t in sorted(set(pick))]
+
+
+def check_order(
+    geo: ViewGeometry,
+    sample: list[list[np.ndarray]],
+    source,
+    min_joints: int = MIN_JOINTS,
+    what: str = "detections",
+):
+    """``M (V, V)`` 2-view residuals (px) of the given order; refuses (``MocapInputError``) when another assignment
+    of the inputs to the cameras (up to 6 cameras) has less than half the summed residual (a pair triangulating
+    behind a camera counts as infinite)."""
+    V = geo.num_views
+    table = _pair_table(geo, sample, min_joints, orders=V <= 6)
+    ident = tuple(range(V))
+    M = _agreement(table, ident)
+    if V <= 6 and not np.all(np.nan_to_num(M, nan=0.0) <= PAIR_FRACTION / TAU_FRACTION * np.min(geo.tau)):
+        total = lambda o: float(np.nansum(_agreement(table, o)))  # noqa: E731
+        best = min(itertools.permutations(range(V)), key=total)
+        if best != ident and total(best) < 0.5 * total(ident):
+            order = ", ".join(f"input {best[c] + 1} → camera {geo.names[c]!r}" for c in range(V))
+            given = (
+                "behind the cameras in the given order"
+                if not np.isfinite(total(ident))
+                else f"{total(ident):.0f} px in the given order"
+            )
+            raise MocapInputError(
+                source,
+                f"the {what} triangulate far better with the inputs in another order than the calibration's "
+                f"cameras ({order}: 2-view residuals {total(best):.0f} px in all, {given}): give the videos in "
+                "the calibration's camera order",
+            )
+    return M
+
+
 def check_rig(rig, dets: list[list[np.ndarray]], source=None, max_frames: int = 12) -> list[str]:
     """Refuse (``MocapInputError`` naming ``source``) a calibration the detections ``dets[t][v]`` contradict
     (module docstring); returns notes. Uses up to ``max_frames`` frames spread over those where two or more views
     detect someone; says nothing with fewer than three such frames."""
     V = rig.num_views
-    if V < 2:
+    sample = _sample(dets, max_frames)
+    if V < 2 or len(sample) < 3:
         return []
-    useful = [t for t, d in enumerate(dets) if sum(len(x) > 0 for x in d) >= 2]
-    if len(useful) < 3:
-        return []
-    pick = [useful[int(i)] for i in np.round(np.linspace(0, len(useful) - 1, min(max_frames, len(useful))))]
-    sample = [dets[t] for t in sorted(set(pick))]
     geo = ViewGeometry(rig)
     names = geo.names
     limit = PAIR_FRACTION / TAU_FRACTION * geo.tau  # (V,) px
-    ident = tuple(range(V))
-    if V <= 6:
-        table = _pair_table(geo, sample)
-    else:
-        table = {
-            (a, b, a, b): _pair_table_one(geo, sample, a, b) for a, b in itertools.combinations(range(V), 2)
-        }
-    M = _agreement(table, ident)
+    M = check_order(geo, sample, source)
     notes = []
     worst = np.nan_to_num(M / np.minimum(limit[:, None], limit[None, :]), nan=0.0)
     if worst.max() > 1.0:
-        total = lambda o: float(np.nansum(_agreement(table, o)))  # noqa: E731
-        if V <= 6:
-            best = min(itertools.permutations(range(V)), key=total)
-            if best != ident and total(best) < 0.5 * total(ident):
-                order = ", ".join(f"input {best[c] + 1} → camera {names[c]!r}" for c in range(V))
-                raise MocapInputError(
-                    source,
-                    "the detections triangulate far better with the inputs in another order than the "
-                    f"calibration's cameras ({order}; 2-view residuals {total(best):.0f} px in all instead of "
-                    f"{total(ident):.0f} px): give the videos in the calibration's camera order",
-                )
         for c in range(V):
-            others = [M[c, b] for b in range(V) if b != c and np.isfinite(M[c, b])]
+            others = [M[c, b] for b in range(V) if b != c and not np.isnan(M[c, b])]
             if others and min(others) > limit[c]:
                 raise MocapInputError(
                     source,
@@ -408,10 +442,25 @@ def check_rig(rig, dets: list[list[np.ndarray]], source=None, max_frames: int = 
     return notes
 
 
-def _pair_table_one(geo: ViewGeometry, dets: list[list[np.ndarray]], a: int, b: int) -> float:
-    s = [_pair_score(geo, (a, b), (d[a], d[b])) for d in dets]
-    s = [v for v in s if np.isfinite(v)]
-    return float(np.median(s)) if s else np.nan
+def check_rig_silhouettes(rig, centroids: np.ndarray, source=None) -> None:
+    """The camera-order check of :func:`check_order` on silhouette centroids ``(T, V, 2)`` (pixels of ``rig``;
+    NaN where a view sees no one): the centroids of one person's silhouettes are nearly the projections of one
+    point, so the inputs in the calibration's order triangulate them consistently, in front of the cameras."""
+    T, V = centroids.shape[:2]
+    dets = []
+    for t in range(T):
+        row = []
+        for v in range(V):
+            if np.all(np.isfinite(centroids[t, v])):
+                d = np.zeros((1, len(EVAL_JOINTS), 3))
+                d[0, 0] = [*centroids[t, v], 1.0]
+                row.append(d)
+            else:
+                row.append(np.zeros((0, len(EVAL_JOINTS), 3)))
+        dets.append(row)
+    sample = _sample(dets, T)
+    if V >= 2 and len(sample) >= 3:
+        check_order(ViewGeometry(rig), sample, source, min_joints=1, what="silhouettes")
 
 
 # ---------------------------------------------------------------------------------------------------------------

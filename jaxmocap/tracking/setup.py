@@ -221,6 +221,7 @@ class TrackSetup:
         )
         if any(n in FOREGROUND_CUES for n, _ in cues) and self.features.foreground == "none":
             raise ValueError("the foreground / coverage cues need a foreground (not --foreground none)")
+        self._check_camera_order()
         self.layers = o.layers if o.layers is not None else default_layers(o.filter)[0]
         if self.layers < 1:
             raise ValueError("--layers must be at least 1")
@@ -233,6 +234,33 @@ class TrackSetup:
         self.num_particles = list(counts) if isinstance(n, (list, tuple)) else int(n)
         self.std = diffusion_std(self.model, source.fps) * float(o.diffusion_scale)
         self.likelihood = self._build_likelihood()
+
+    def _check_camera_order(self, num: int = 16) -> None:
+        """Inputs whose calibration no detections have checked (``source.check_silhouettes``): the centroids of
+        the foreground of ``num`` frames spread over the run, seen by the static background, must triangulate
+        better in the calibration's camera order than in any other
+        (:func:`jaxmocap.io.subject.check_rig_silhouettes`)."""
+        src, fb = self.source, self.features
+        if not getattr(src, "check_silhouettes", False) or fb.foreground != "median" or src.rig.num_views < 2:
+            return
+        from jaxmocap.io.subject import check_rig_silhouettes
+
+        frames = self.frames
+        pick = sorted(
+            {frames[int(i)] for i in np.round(np.linspace(0, len(frames) - 1, min(num, len(frames))))}
+        )
+        centroids = np.full((len(pick), src.rig.num_views, 2), np.nan)
+        for i, t in enumerate(pick):
+            try:
+                fd = src.read(t, masks=False, depth=False)
+            except BadFrame:
+                continue
+            masks = fb.extractor.foreground_masks(fb.extractor._check_frames(fd.images), None)
+            for v, m in enumerate(masks):
+                ys, xs = np.nonzero(m)
+                if xs.size >= 50:
+                    centroids[i, v] = xs.mean(), ys.mean()
+        check_rig_silhouettes(fb.rig, centroids, src.description.get("calibration"))
 
     def _measured_body(self) -> dict | None:
         """The subject's dimensions measured from the input's detections (``body = "detections"``, or no body
