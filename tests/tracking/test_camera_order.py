@@ -32,7 +32,7 @@ def _as_videos(seq_dir, out):
 @pytest.mark.parametrize("rig", ["stereo", "ring4"])
 def test_videos_in_another_order_are_refused(rig, tmp_path):
     synth.synthesize(
-        "demo", tmp_path / "seq", rig=rig, frames="0:480", fps=10.0, size="96x72", seed=0, overwrite=True
+        "demo", tmp_path / "seq", rig=rig, frames="0:480", fps=5.0, size="96x72", seed=0, overwrite=True
     )
     calib, vids = _as_videos(tmp_path / "seq", tmp_path)
     opts = TrackOptions(model="upper9", cues="foreground,coverage")
