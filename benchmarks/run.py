@@ -279,9 +279,9 @@ SCRIPTS: dict[str, Script] = {
         writes=("run_*.png",),
     ),
     "pose2sim_track": Script(
-        "Pose2Sim demo recording tracked, against Pose2Sim's triangulation",
+        "Pose2Sim demo recording tracked from its project folder, against Pose2Sim's triangulation",
         "experiments/pose2sim_track.py",
-        "--out /tmp/p2s/full3 --cues foreground,edge_distance,coverage:4,keypoints:4 --report",
+        "--out /tmp/p2s --report",
         writes=("pose2sim.md", "pose2sim_overlay.png"),
         env="JAX_PLATFORMS=cpu",
     ),

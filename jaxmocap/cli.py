@@ -24,7 +24,7 @@ import numpy as np
 
 from jaxmocap import __version__, choices
 from jaxmocap.errors import MocapInputError
-from jaxmocap.tracking.smoothing import DEFAULT_CUTOFF_HZ, DEFAULT_SMOOTH
+from jaxmocap.tracking.smoothing import DEFAULT_CUTOFF_HZ
 
 
 def _calib_show(args) -> int:
@@ -32,6 +32,9 @@ def _calib_show(args) -> int:
     from jaxmocap.io import calibration
 
     rig = calibration.load_calibration(args.file)
+    rig, note = calibration.check_units(rig, "auto", args.file)
+    if note:
+        print(f"jaxmocap: note: {note}", file=sys.stderr)
     centres = np.asarray(camera.camera_centres(rig.to_jax()))
     print(f"{rig.num_views} cameras in {args.file}")
     for v, name in enumerate(rig.names):
@@ -144,51 +147,51 @@ def _print_summary(summary: dict, out) -> None:
         )
 
 
-def _track_options(args):
-    from jaxmocap.tracking.options import TrackOptions
+#: ``jaxmocap track`` arguments that are inputs rather than options (see :data:`jaxmocap.tracking.options.INPUT_KEYS`)
+_INPUTS = ("input", "videos", "calibration", "keypoints", "depth")
 
-    return TrackOptions(
-        model=args.model,
-        body=args.body,
-        filter=args.filter,
-        particles=args.particles,
-        layers=args.layers,
-        cues=args.cues,
-        seed=args.seed,
-        frames=args.frames,
-        init=args.init,
-        foreground=args.foreground,
-        downsample=args.downsample,
-        on_bad_frame=args.on_bad_frame,
-        overlay=args.overlay,
-        resume=args.resume,
-        overwrite=args.overwrite,
-        smooth=args.smooth,
-        bvh_units=args.bvh_units,
+
+def _track_values(args) -> dict:
+    """The run's settings: the ``--config`` file's, overridden by the options given on the command line (inputs
+    given on the command line replace the file's inputs as a whole)."""
+    from jaxmocap.tracking.options import RUN_KEYS, load_config, option_types
+
+    values = load_config(args.config) if args.config else {}
+    given = {
+        k: getattr(args, k)
+        for k in (*option_types(), *_INPUTS, *RUN_KEYS)
+        if getattr(args, k, None) is not None
+    }
+    if any(k in given for k in ("input", "videos")):
+        for k in _INPUTS:
+            values.pop(k, None)
+    values.update(given)
+    if values.get("out") is None:
+        raise ValueError('--out is required (or out = "DIR" in the --config file)')
+    return values
+
+
+def _open_source(values: dict, options):
+    from jaxmocap.api import open_source
+
+    folder = values.get("input")
+    if folder is not None and values.get("videos") is None and not any(values.get(k) for k in _INPUTS[2:]):
+        from jaxmocap.parsec import inputs as parsec_sequence
+
+        if parsec_sequence.is_parsec_folder(folder):  # a PARSEC bodytrack sequence (CALIB/, CAM<k>/, FG<k>/)
+            return parsec_sequence.ParsecSource(folder)
+    return open_source(
+        folder,
+        values.get("videos"),
+        values.get("calibration"),
+        values.get("keypoints"),
+        values.get("depth"),
+        options.keypoint_layout,
+        options.calibration_units,
     )
 
 
-def _open_source(args):
-    from jaxmocap.io import sources
-
-    if (args.input is None) == (args.videos is None):
-        raise ValueError("give either a sequence folder (INPUT) or --videos V1 V2 ... with --calibration")
-    if args.videos is not None:
-        if args.calibration is None:
-            raise ValueError("--videos needs --calibration FILE")
-        return sources.VideoSource(args.videos, args.calibration, args.keypoints, args.depth)
-    if args.keypoints or args.depth or args.calibration:
-        raise ValueError(
-            "--calibration, --keypoints and --depth go with --videos (a sequence folder has its own)"
-        )
-    from jaxmocap.parsec import inputs as parsec_sequence
-
-    if parsec_sequence.is_parsec_folder(args.input):  # a PARSEC bodytrack sequence (CALIB/, CAM<k>/, FG<k>/)
-        return parsec_sequence.ParsecSource(args.input)
-    return sources.SequenceSource(args.input)
-
-
-def _make_run(source, args, options):
+def _make_run(source, out, options, quiet: bool):
     """The tracking run for ``source``: bodytrack's configuration for a PARSEC sequence, else the Tracker."""
     from jaxmocap.parsec.inputs import ParsecSource
     from jaxmocap.tracking import tracker
@@ -196,8 +199,8 @@ def _make_run(source, args, options):
     if isinstance(source, ParsecSource):
         from jaxmocap.parsec.track import ParsecTracker
 
-        return ParsecTracker(source, args.out, options, quiet=args.quiet)
-    return tracker.Tracker(source, args.out, options, quiet=args.quiet)
+        return ParsecTracker(source, out, options, quiet=quiet)
+    return tracker.Tracker(source, out, options, quiet=quiet)
 
 
 def _silence_opencv() -> None:
@@ -208,19 +211,38 @@ def _silence_opencv() -> None:
 
 
 def _track(args) -> int:
-    _silence_opencv()
+    import dataclasses
 
+    from jaxmocap.api import run_options, write_config
+
+    _silence_opencv()
+    out, quiet = args.out, bool(args.quiet)
     try:
-        options = _track_options(args)
-        source = _open_source(args)
+        values = _track_values(args)
+        out, quiet = values["out"], bool(values.get("quiet", False))
+        options = run_options(values)
+        source = _open_source(values, options)
         try:
-            run = _make_run(source, args, options)
-            summary = run.run()
+            project = getattr(source, "project", None)
+            if options.frames is None and project and project.get("frames"):
+                options = dataclasses.replace(options, frames=project["frames"])
+                values["frames"] = options.frames
+            run = _make_run(source, out, options, quiet)
+            if not quiet:
+                for note in getattr(run.setup, "notes", []):
+                    print(f"jaxmocap: note: {note}", file=sys.stderr)
+            try:
+                summary = run.run()
+            finally:
+                if hasattr(run.setup, "cues") and hasattr(run.setup, "num_particles"):
+                    write_config(
+                        out, {k: v for k, v in values.items() if k not in ("out", "quiet")}, run.setup
+                    )
         finally:
             source.close()
     except KeyboardInterrupt:
         print(
-            f"\njaxmocap: interrupted; the frames tracked so far are in {args.out} (--resume continues)",
+            f"\njaxmocap: interrupted; the frames tracked so far are in {out} (--resume continues)",
             file=sys.stderr,
         )
         return 130
@@ -229,8 +251,8 @@ def _track(args) -> int:
     except ValueError as e:  # a bad option value
         print(f"jaxmocap: error: {e}", file=sys.stderr)
         return 2
-    if not args.quiet:
-        _print_summary(summary, args.out)
+    if not quiet:
+        _print_summary(summary, out)
     return 0
 
 
@@ -454,6 +476,7 @@ def _add_sweep_command(sub) -> None:
 
 # the choices of a tracking run (jaxmocap.choices does not import JAX: building the parser stays fast)
 _MODELS, _FILTERS, _FOREGROUNDS = choices.MODELS, choices.FILTERS, choices.FOREGROUNDS
+_LAYOUTS = choices.KEYPOINT_LAYOUTS
 
 
 def _add_tracking_commands(sub) -> None:
@@ -466,21 +489,48 @@ def _add_tracking_commands(sub) -> None:
         "and plots/.",
     )
     tr.add_argument(
-        "input", nargs="?", help="sequence folder or PARSEC bodytrack sequence folder (or use --videos)"
+        "input",
+        nargs="?",
+        help="sequence folder, Pose2Sim project folder (Config.toml, calibration/, videos/, pose/) or PARSEC "
+        "bodytrack sequence folder (or use --videos)",
     )
-    tr.add_argument("--out", required=True, help="output folder")
+    tr.add_argument(
+        "--config",
+        metavar="FILE",
+        help="TOML file of options and inputs (any option below by its long name with _ for -, e.g. "
+        'particles = 300, videos = ["a.mp4", "b.mp4"]); options given here override it; the effective '
+        "configuration is written to --out as config.toml",
+    )
+    tr.add_argument("--out", help="output folder")
     tr.add_argument("--videos", nargs="+", metavar="V", help="one synchronised video per camera")
     tr.add_argument(
-        "--calibration", help="calibration of the videos (any format `jaxmocap calib show` reads)"
+        "--calibration",
+        help="calibration of the videos (any format `jaxmocap calib show` reads, EasyMocap's intri.yml/extri.yml "
+        "folder included)",
     )
     tr.add_argument(
-        "--keypoints", nargs="+", metavar="DIR", help="OpenPose JSON folder per camera (with --videos)"
+        "--keypoints",
+        nargs="+",
+        metavar="DIR",
+        help="2D keypoint JSON folder per camera (with --videos; OpenPose format, files matched to frames by the "
+        "number in their names)",
+    )
+    tr.add_argument(
+        "--keypoint-layout",
+        choices=("auto", *_LAYOUTS),
+        help="layout of the keypoint files (default auto: from the number of keypoints and where they lie)",
+    )
+    tr.add_argument(
+        "--calibration-units",
+        choices=("auto", "m", "mm"),
+        help="units of the calibration's translations (default auto: millimetres when the cameras are too far "
+        "apart for metres)",
     )
     tr.add_argument(
         "--depth", nargs="+", metavar="DIR", help="depth-map folder per camera: .npy metres or 16-bit PNG mm"
     )
     tr.add_argument("--model", choices=_MODELS, help="body model (default: the body file's, else full25)")
-    tr.add_argument("--filter", choices=_FILTERS, default="apf", help="particle filter (default apf)")
+    tr.add_argument("--filter", choices=_FILTERS, help="particle filter (default apf)")
     tr.add_argument(
         "--particles",
         type=_particle_counts,
@@ -491,49 +541,73 @@ def _add_tracking_commands(sub) -> None:
     tr.add_argument(
         "--cues", help="comma-separated cues with optional weights, e.g. foreground,edge_distance:2,coverage"
     )
-    tr.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    tr.add_argument("--frames", help="frame range A:B (default: all)")
+    tr.add_argument("--seed", type=int, help="random seed (default 0)")
+    tr.add_argument("--frames", help="frame range A:B (default: all, or a Pose2Sim project's frame_range)")
     tr.add_argument(
         "--init",
-        default="auto",
         help="groundtruth, ik or a FILE (.npz with 'state', .npy, text); default: groundtruth if the input has it, else ik",
     )
-    tr.add_argument("--body", help="body file (TOML) with the subject's dimensions")
+    tr.add_argument(
+        "--body",
+        help="body file (TOML) with the subject's dimensions, or 'detections' (measured from the 2D keypoints; "
+        "the default for an input with keypoints and no body file)",
+    )
     tr.add_argument(
         "--foreground",
         choices=_FOREGROUNDS,
-        default="auto",
         help="foreground source (default: masks of a sequence, else a median background)",
     )
     tr.add_argument(
-        "--downsample", type=int, choices=(1, 2, 4), default=1, help="process images at 1/1, 1/2 or 1/4 size"
+        "--downsample", type=int, choices=(1, 2, 4), help="process images at 1/1, 1/2 or 1/4 size"
     )
     tr.add_argument(
         "--on-bad-frame",
         choices=("skip", "stop"),
-        default="skip",
         help="a frame that does not decode: skip it with a warning (default) or stop",
     )
     tr.add_argument(
         "--overlay",
         action="store_true",
+        default=None,
         help="also write an H.264 MP4 per view with the model drawn over the images, and a montage PNG",
     )
     tr.add_argument(
         "--smooth",
         type=_smooth_spec,
-        default=DEFAULT_SMOOTH,
+        default=None,
         metavar="butterworth[:HZ]|none",
         help="smoothing of the exported track (poses_smoothed.npz, track.bvh, poses.trc, poses.c3d): zero-phase "
         f"Butterworth low-pass, order 4, cut-off HZ (default {DEFAULT_CUTOFF_HZ:g}), or none; lost and "
         "skipped frames are interpolated either way; poses.npz keeps the raw estimates",
     )
     tr.add_argument(
-        "--bvh-units", choices=("cm", "m"), default="cm", help="length unit of track.bvh (default cm)"
+        "--bvh-units", choices=("cm", "m"), default=None, help="length unit of track.bvh (default cm)"
     )
-    tr.add_argument("--resume", action="store_true", help="continue an interrupted run in --out")
-    tr.add_argument("--overwrite", action="store_true", help="replace a previous run in --out")
-    tr.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    for flag, kind, what in (
+        (
+            "--velocity",
+            float,
+            "damping of the constant-velocity prediction of the root (default 0.5; 0 = none)",
+        ),
+        ("--diffusion-scale", float, "factor on the per-DOF diffusion (default 1)"),
+        ("--survival-target", float, "annealing survival rate alpha (default 0.5)"),
+        ("--samples", int, "silhouette samples per view of the coverage cue (default 128)"),
+        (
+            "--loss-ratio",
+            float,
+            "track lost when the best energy exceeds this times its reference (default 2.5)",
+        ),
+        ("--loss-frames", int, "... for this many frames in a row (default 3)"),
+        ("--loss-window", int, "frames after the initialisation that set the reference energy (default 5)"),
+        ("--reinit-widen", float, "spread of a re-initialisation, times the diffusion (default 3)"),
+    ):
+        tr.add_argument(flag, type=kind, help=what)
+    tr.add_argument("--fsync", action="store_true", default=None, help="fsync every output rewrite")
+    tr.add_argument(
+        "--resume", action="store_true", default=None, help="continue an interrupted run in --out"
+    )
+    tr.add_argument("--overwrite", action="store_true", default=None, help="replace a previous run in --out")
+    tr.add_argument("--quiet", action="store_true", default=None, help="no progress bar, notes or summary")
     tr.set_defaults(func=_track)
 
     pl = sub.add_parser(
