@@ -220,6 +220,26 @@ def build_motion(
     )
 
 
+def motion_in_units(motion: Motion, scale: float, up_axis: str, from_up_axis: str = "y") -> Motion:
+    """A motion built in file units (``scale=1``) read with ``from_up_axis``, rebuilt with ``scale`` metres per
+    unit and the file's ``up_axis`` (:func:`build_motion` on the file-frame data recovered with ``A⁻¹``)."""
+    A = up_axis_matrix(from_up_axis)
+    back = lambda v: np.asarray(v, np.float64) @ A  # A⁻¹ v = Aᵀ v, row form v A
+    return build_motion(
+        motion.joint_names,
+        motion.parents,
+        back(motion.offsets),
+        A.T @ motion.local_rotations @ A,
+        back(motion.translations()),
+        motion.fps,
+        motion.source,
+        motion.end_parents,
+        back(motion.end_offsets),
+        scale=scale,
+        up_axis=up_axis,
+    )
+
+
 def rest_positions(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
     """World joint ``(J, 3)`` and end-site ``(E, 3)`` positions of the rest pose (all rotations identity, root at
     its rest offset)."""
@@ -292,8 +312,9 @@ def matrix_to_euler(R, order: str, xp=np):
 # ---------------------------------------------------------------------------------------------------------------
 # Evaluation joints
 
-#: A joint spec is a joint name (its position) or ``("end_mid", name)`` (midpoint of the joint and its end site).
-JointSpec = str | tuple[str, str]
+#: A joint spec is a joint name (its position), ``("end_mid", name)`` (midpoint of the joint and its first end
+#: site) or ``("mid", a, b)`` (midpoint of joints ``a`` and ``b``).
+JointSpec = str | tuple[str, str] | tuple[str, str, str]
 
 CMU_ASF_EVAL: dict[str, JointSpec] = {
     "root": "root",
@@ -360,8 +381,17 @@ KNOWN_MAPPINGS: dict[str, dict[str, JointSpec]] = {
 def _spec_ok(motion: Motion, spec: JointSpec) -> bool:
     if isinstance(spec, str):
         return spec in motion.joint_names
-    kind, name = spec
-    return kind == "end_mid" and name in motion.joint_names and motion.joint_index(name) in motion.end_parents
+    if spec[0] == "mid" and len(spec) == 3:
+        return all(n in motion.joint_names for n in spec[1:])
+    if spec[0] != "end_mid" or len(spec) != 2:
+        return False
+    name = spec[1]
+    return name in motion.joint_names and motion.joint_index(name) in motion.end_parents
+
+
+def spec_joints(spec: JointSpec) -> tuple[str, ...]:
+    """The joint names a :data:`JointSpec` refers to."""
+    return (spec,) if isinstance(spec, str) else tuple(spec[1:])
 
 
 def eval_mapping(motion: Motion) -> dict[str, JointSpec]:
@@ -371,13 +401,17 @@ def eval_mapping(motion: Motion) -> dict[str, JointSpec]:
             return mapping
     raise KeyError(
         f"{motion.source or 'motion'}: skeleton matches none of the known CMU namings "
-        f"({', '.join(KNOWN_MAPPINGS)}); pass mapping= explicitly"
+        f"({', '.join(KNOWN_MAPPINGS)}); recognise it with jaxmocap.io.skeletons.recognise or pass mapping="
     )
 
 
 def _spec_points(motion: Motion, spec: JointSpec, joints: np.ndarray, ends: np.ndarray) -> np.ndarray:
     if isinstance(spec, str):
         return joints[..., motion.joint_index(spec), :]
+    if spec[0] == "mid":
+        return 0.5 * (
+            joints[..., motion.joint_index(spec[1]), :] + joints[..., motion.joint_index(spec[2]), :]
+        )
     _, name = spec
     e = motion.end_site_of(name)
     return 0.5 * (joints[..., motion.joint_index(name), :] + ends[..., e, :])
@@ -434,6 +468,8 @@ def body_dimensions_from_motion(motion: Motion, mapping: Mapping[str, JointSpec]
     head_spec = mapping["head"]
     if isinstance(head_spec, str):
         head_start = head_end = E["head"]
+    elif head_spec[0] == "mid":
+        head_start, head_end = X[motion.joint_index(head_spec[1])], X[motion.joint_index(head_spec[2])]
     else:
         j = motion.joint_index(head_spec[1])
         head_start, head_end = X[j], ends[motion.end_site_of(head_spec[1])]

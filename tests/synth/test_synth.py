@@ -308,6 +308,37 @@ def test_dressing_of_cmu_skeletons(data_dir):
         assert not np.allclose(colours[roles.index("thigh")], synth.ROLE_COLOURS["head"])
 
 
+def test_dressing_of_other_skeletons(data_dir):
+    """The Bandai-Namco excerpt's parts follow its recognised joints (its names say little: ``Shoulder_L`` is a
+    clavicle, ``LowerArm_L`` a forearm)."""
+    m, rec = synth.load_clip(data_dir / "bandai" / "dataset-1_walk_normal_001_excerpt.bvh")
+    d = synth.dress(m, rec.mapping)
+    role = dict(zip(d.part_names, d.part_roles, strict=True))
+    assert role["Shoulder_L"] == "clavicle" and role["UpperArm_L"] == "upper_arm"
+    assert role["LowerArm_L"] == "forearm" and role["UpperLeg_R"] == "thigh" and role["LowerLeg_R"] == "shin"
+    assert role["Foot_L"] == "foot" and role["Neck"] == "neck" and "joint_Root" not in role
+    assert role["Hand_L"] == role["Hand_R"] == "hand"  # a nominal hand past the bare wrist
+    assert "limb" not in d.part_roles and d.part_roles[-1] == "head"
+
+
+def test_command_any_skeleton(tmp_path, data_dir, capsys):
+    """``--mapping`` names joints for the clip; a joint the file lacks is one line and status 2."""
+    clip = data_dir / "bandai" / "dataset-1_walk_normal_001_excerpt.bvh"
+    mapping = tmp_path / "map.toml"
+    mapping.write_text('left_wrist = "Hand_L"\nright_wrist = "Hand_R"\n')
+    out = tmp_path / "seq"
+    argv = ["synth", "--motion", str(clip), "--frames", "0:2", "--size", "160x120", "--quiet"]
+    assert cli.main([*argv, "--mapping", str(mapping), "--out", str(out)]) == 0
+    meta = seqio.load_sequence(out).meta
+    assert meta["source"]["skeleton"]["family"] == "file+bandai_namco"
+    assert meta["source"]["skeleton"]["scale"] == 0.01 and "CC BY-NC" in meta["source"]["licence"]
+    mapping.write_text('left_wrist = "Wrist_L"\n')
+    capsys.readouterr()
+    assert cli.main([*argv, "--mapping", str(mapping), "--out", str(tmp_path / "bad")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "left_wrist = 'Wrist_L': no such joint" in err and str(clip) in err
+
+
 def test_options_are_checked(tmp_path):
     assert synth.parse_frames("10:20", 100) == (10, 20)
     assert synth.parse_frames(":-10", 100) == (0, 90)
