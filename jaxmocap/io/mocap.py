@@ -28,14 +28,19 @@ joint in the CMU ASF / the 3ds Max-friendly cgspeed BVH / the MotionBuilder-frie
   the head): ``head`` / ``Head`` / ``Head``;
 * left/right shoulder — start of the humerus: ``l/rhumerus`` / ``Left/RightShoulder`` / ``Left/RightArm``;
 * left/right elbow — start of the radius: ``l/rradius`` / ``Left/RightElbow`` / ``Left/RightForeArm``;
-* left/right wrist — start of the wrist bone (end of the radius): ``l/rwrist`` / ``Left/RightWrist`` /
-  ``Left/RightHand``;
+* left/right wrist — start of the hand bone, where the hand bends: ``l/rhand`` / ``Left/RightWrist`` /
+  ``Left/RightHand``. In the ASF the ``l/rwrist`` bone (``dof ry``) carries the forearm's twist and continues the
+  radius to the wrist; ``l/rhand`` carries the wrist's flexion and deviation (``dof rx rz``), so the wrist is the
+  end of ``l/rwrist``. The cgspeed conversions agree: their ``Left/RightWrist`` sits one radius plus one ASF
+  wrist bone past the elbow, at the ``lhand`` joint;
 * left/right hip — start of the femur: ``l/rfemur`` / ``Left/RightHip`` / ``Left/RightUpLeg``;
 * left/right knee — start of the tibia: ``l/rtibia`` / ``Left/RightKnee`` / ``Left/RightLeg``;
 * left/right ankle — start of the foot: ``l/rfoot`` / ``Left/RightAnkle`` / ``Left/RightFoot``.
 
 "Start of bone b" is the position of the joint that rotates b (BVH joints and ASF bones are named after the
-bone they move). The ASF and 3ds Max-friendly names are checked on the shipped CMU clips; the
+bone they move). Each ASF joint above is the start of the bone carrying that articulation's bending degrees of
+freedom (shoulder and hip: ``rx ry rz``; elbow and knee: ``rx``; wrist: ``rx rz``; ankle: ``rx rz``), a twist-only
+bone (``l/rwrist``) being part of the segment before it (``tests/io/test_asfamc.py`` reads this from the ASF). The ASF and 3ds Max-friendly names are checked on the shipped CMU clips; the
 MotionBuilder-friendly ones follow the same conversion with the other naming and are accepted by name.
 Note that the cgspeed BVH skeleton drops the ASF ``thorax`` bone: its ``lowerneck`` joint coincides with
 ``Chest2``, the start of the ASF ``thorax`` bone.
@@ -322,10 +327,10 @@ CMU_ASF_EVAL: dict[str, JointSpec] = {
     "head": ("end_mid", "head"),
     "left_shoulder": "lhumerus",
     "left_elbow": "lradius",
-    "left_wrist": "lwrist",
+    "left_wrist": "lhand",
     "right_shoulder": "rhumerus",
     "right_elbow": "rradius",
-    "right_wrist": "rwrist",
+    "right_wrist": "rhand",
     "left_hip": "lfemur",
     "left_knee": "ltibia",
     "left_ankle": "lfoot",

@@ -332,7 +332,8 @@ def test_shape_alone_places_the_same_joints(mixamo, cmu_bvh):
     """With every name replaced by j<k>, the tree's shape finds the joints the names find."""
     raw_mixamo = bvh.motion_from_bvh(bvh.read_bvh(mixamo[1]), scale=1.0)
     raw_bandai = bvh.motion_from_bvh(bvh.read_bvh(BANDAI), scale=1.0)
-    for motion in (raw_mixamo, raw_bandai, cmu_bvh):
+    cmu_asf = asfamc.load_asfamc(CMU / "02.asf", CMU / "02_01.amc")
+    for motion in (raw_mixamo, raw_bandai, cmu_bvh, cmu_asf):
         by_name = skeletons.recognise(motion).mapping
         rec = skeletons.recognise(_strip_names(motion))
         assert rec.family == "shape"
