@@ -205,6 +205,20 @@ def dress(
     )
 
 
+def toe_points(motion: Motion, mapping: Mapping[str, JointSpec]) -> tuple[int, int]:
+    """Indices into :func:`dressing_points` (joints, then end sites) of the left and right toe tips: the
+    descendant of each ankle farthest from it at rest (the ankle itself when its foot has no bone)."""
+    X, E = rest_positions(motion)
+    pts = np.concatenate([X, E], 0) if len(E) else X
+    par = list(motion.parents) + list(motion.end_parents)
+    out = []
+    for side in ("left", "right"):
+        a = motion.joint_index(mapping[f"{side}_ankle"])
+        below = [p for p in range(len(par)) if p != a and a in ancestors(par, p)]
+        out.append(max(below, key=lambda p: np.linalg.norm(pts[p] - pts[a])) if below else a)
+    return out[0], out[1]
+
+
 def dressing_points(motion: Motion, dressing: Dressing, frames: Sequence[int] | np.ndarray) -> np.ndarray:
     """``(T, P, 3)`` points of :class:`Dressing` at the source frames ``frames``: joints, end sites, and the head
     spheroid's axis ends ``m ± (head_length/2) â`` with ``m`` the middle of the head bone and ``â`` its

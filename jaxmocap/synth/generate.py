@@ -15,9 +15,13 @@ millimetres; :func:`jaxmocap.geometry.render.virtual_depth`).
 
 Rigs and backgrounds: :mod:`jaxmocap.synth.stage`.
 
+Each view also gets simulated OpenPose BODY_25B detections per frame (:mod:`jaxmocap.synth.detections`,
+``views/<camera>/openpose/``), marked as simulated in ``meta.json``.
+
 Determinism: every random number comes from ``numpy.random.default_rng([seed, frame, view])`` (a stream per
-output image, independent of the order of work) or ``default_rng([seed, view])`` for a view's background, and
-every file is written byte-identically (:mod:`jaxmocap.io.sequence`).
+output image, independent of the order of work), ``default_rng([seed, frame, view, 2])`` for its simulated
+detections, or ``default_rng([seed, view])`` for a view's background, and every file is written byte-identically
+(:mod:`jaxmocap.io.sequence`).
 """
 
 from __future__ import annotations
@@ -43,6 +47,7 @@ from jaxmocap.geometry import camera, render
 from jaxmocap.io import calibration, skeletons
 from jaxmocap.io import sequence as seqio
 from jaxmocap.io.mocap import JointSpec, Motion, eval_joints
+from jaxmocap.synth import detections as dets
 from jaxmocap.synth.dressing import (
     HEAD_LENGTH,
     HEAD_RADIUS,
@@ -53,6 +58,7 @@ from jaxmocap.synth.dressing import (
     dress,
     dressing_points,
     scene_primitives,
+    toe_points,
 )
 
 # the rig and background functions stay part of this module's API (__all__)
@@ -293,6 +299,13 @@ def default_licence(family: str) -> str:
     return "not stated (pass --licence)"
 
 
+def detections_path(root: str | os.PathLike, view: str, frame: int) -> pathlib.Path:
+    """``root/views/<view>/openpose/<view>_NNNNNNNNNNNN_keypoints.json`` (OpenPose's own naming), folder created."""
+    folder = pathlib.Path(root) / seqio.VIEWS / view / "openpose"
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder / f"{view}_{int(frame):012d}_keypoints.json"
+
+
 def _prepare_output(out: pathlib.Path, overwrite: bool) -> None:
     if out.exists() and not out.is_dir():
         raise FileExistsError(f"{out} exists and is not a folder")
@@ -355,6 +368,7 @@ def synthesize(
     depth_smooth: float = 1.5,
     illumination: float = 0.0,
     blur: int = 1,
+    detections: bool = True,
     overwrite: bool = False,
     licence: str | None = None,
     progress: Callable[[int, int], None] | None = None,
@@ -377,6 +391,8 @@ def synthesize(
       illumination: amplitude ``A`` of a global illumination change ``1 + A sin(2π t / 4 s + φ)``.
       blur: number of consecutive source frames averaged per image (motion blur), centred on the frame;
         mask, depth and labels are those of the central frame.
+      detections: write simulated OpenPose BODY_25B detections per view and frame
+        (:mod:`jaxmocap.synth.detections`, in ``views/<camera>/openpose/``).
       overwrite: replace an existing sequence in ``out``.
       licence: the clip's licence line for ``meta.json`` (default :func:`default_licence` of its skeleton).
       progress: called as ``progress(done, total)`` after each frame.
@@ -421,6 +437,15 @@ def synthesize(
     K, dist, Rv, tv = (np.asarray(x, np.float64) for x in (cams.K, cams.dist, cams.R, cams.t))
     lights = [jnp.asarray(Rv[v] @ light_world / np.linalg.norm(light_world), jnp.float32) for v in range(V)]
     half = (int(blur) - 1) // 2
+    detector = None
+    if detections:
+        kp, normals = dets.keypoints_3d(
+            ej_all + offset,
+            points[:, list(dressing.head_points)],
+            dressing.head_radius,
+            points[:, list(toe_points(m, rec.mapping))],
+        )
+        detector = dets.Detector(K, dist, Rv, tv, cams.image_size, kp, normals, int(blur))
 
     def render_frame(i: int):
         prims = scene_primitives(points[i], dressing)
@@ -448,6 +473,11 @@ def synthesize(
                 2 * math.pi * (k * step / m.fps) / ILLUMINATION_PERIOD + phase
             )
             subs = [min(max(i + d - half, 0), m.num_frames - 1) for d in range(int(blur))]
+            if detector is not None:
+                r_a, r_b = np.asarray(dressing.radius_start), np.asarray(dressing.radius_end)
+                own = dets.own_labels(
+                    kp[i], scene["cone_a"][-1], scene["cone_b"][-1], r_a, r_b, dressing.num_cones
+                )
             others = {s: render_frame(s)[1] for s in subs if s != i}
             for v in range(V):
                 renders = [current[v] if s == i else others[s][v] for s in subs]
@@ -462,6 +492,9 @@ def synthesize(
                     pool.submit(seqio.write_depth, seqio.frame_path(out, name, "depth", k), depth_mm),
                     pool.submit(seqio.write_labels, seqio.frame_path(out, name, "labels", k), labels),
                 ]
+                if detector is not None:
+                    found = detector.frame(np.random.default_rng([int(seed), k, v, 2]), v, i, labels, own)
+                    writes.append(pool.submit(dets.write_openpose_json, detections_path(out, name, k), found))
             while len(writes) > 16 * V:
                 writes.pop(0).result()
             if progress is not None:
@@ -513,6 +546,14 @@ def synthesize(
         "noise": {"rgb_sigma": noise, "depth_sigma_m": depth_noise, "depth_smooth_px": depth_smooth},
         "illumination_amplitude": illumination,
         "motion_blur_frames": int(blur),
+        "detections": {
+            "simulated": True,
+            "format": "OpenPose BODY_25B JSON",
+            "path": "views/<camera>/openpose/<camera>_NNNNNNNNNNNN_keypoints.json",
+            "model": dataclasses.asdict(detector.model),
+        }
+        if detector is not None
+        else None,
         "caps": CAPS,
         "parts": list(dressing.part_names),
         "part_roles": list(dressing.part_roles),

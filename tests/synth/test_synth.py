@@ -23,6 +23,7 @@ from jaxmocap.io.mocap import eval_joints
 from jaxmocap.synth import generate as synth
 
 SIZE = (160, 120)
+EVAL_JOINTS_INDEX = {n: i for i, n in enumerate(body.EVAL_JOINTS)}
 
 
 @pytest.fixture(scope="module")
@@ -257,7 +258,7 @@ def test_two_runs_with_one_seed_are_byte_identical(tmp_path):
     b = synth.synthesize("demo", tmp_path / "b", seed=11, **kw).root
     c = synth.synthesize("demo", tmp_path / "c", seed=12, **kw).root
     files = sorted(p.relative_to(a) for p in a.rglob("*") if p.is_file())
-    assert len(files) == 4 + 2 * 4 * 2
+    assert len(files) == 4 + 2 * 5 * 2  # 4 sequence files; 2 views x (4 images + detections) x 2 frames
     assert files == sorted(p.relative_to(b) for p in b.rglob("*") if p.is_file())
     for rel in files:
         assert (a / rel).read_bytes() == (b / rel).read_bytes(), rel
@@ -288,6 +289,41 @@ def test_calibration_file_rig(tmp_path, data_dir):
         px = np.rint(uv[:, 0]).astype(int)
         inside = (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
         assert mask[px[inside, 1], px[inside, 0]].all()
+
+
+def test_simulated_detections_are_written_near_the_truth(exact):
+    """Every view has BODY_25B JSON per frame, read by the project's OpenPose reader; each detected limb keypoint
+    lies within 6 σ of the OpenCV projection of its ground-truth joint (σ at most 3 × 3 px × the largest COCO
+    constant × the distance factor at 10 m), or at the opposite side's joint where swapped."""
+    from jaxmocap.io import openpose
+
+    seq = exact["ring4"]
+    assert seq.meta["detections"]["simulated"] is True
+    cams = _opencv_cameras(seq.root)
+    limb = {
+        n: EVAL_JOINTS_INDEX[j]
+        for j, n in ((j, openpose.BODY_25B_KEYPOINTS[k]) for j, k in openpose.BODY_25B_OF_JOINT.items())
+        if j != "thorax"
+    }
+    bound = 6 * 3 * 3.0 * SIZE[0] / 640 * (0.107 / 0.072) * (1 + 0.2 * 8)
+    found = 0
+    for view in seq.views:
+        det = openpose.load_openpose_folder(seq.root / "views" / view.name / "openpose")
+        assert det.shape == (seq.num_frames, 25, 3)
+        K, dist, R, tv, _ = cams[view.name]
+        for t in range(seq.num_frames):
+            uv, _ = cv2.projectPoints(seq.groundtruth.joints[t], cv2.Rodrigues(R)[0], tv, K, dist)
+            uv = uv[:, 0]
+            for name, j in limb.items():
+                k = openpose.BODY_25B_INDEX[name]
+                if det[t, k, 2] > 0:
+                    other = limb[("R" if name[0] == "L" else "L") + name[1:]]
+                    err = min(
+                        np.linalg.norm(det[t, k, :2] - uv[j]), np.linalg.norm(det[t, k, :2] - uv[other])
+                    )
+                    assert err < bound, (view.name, t, name, err)
+                    found += 1
+    assert found > 0.5 * len(seq.views) * seq.num_frames * len(limb)
 
 
 def test_dressing_of_cmu_skeletons(data_dir):
