@@ -15,12 +15,14 @@ millimetres; :func:`jaxmocap.geometry.render.virtual_depth`).
 
 Rigs and backgrounds: :mod:`jaxmocap.synth.stage`.
 
-Each view also gets simulated OpenPose BODY_25B detections per frame (:mod:`jaxmocap.synth.detections`,
-``views/<camera>/openpose/``), marked as simulated in ``meta.json``.
+Each view also gets its empty-scene plate (:mod:`jaxmocap.synth.plates`, ``views/<camera>/background.png``) and
+simulated OpenPose BODY_25B detections per frame (:mod:`jaxmocap.synth.detections`, ``views/<camera>/openpose/``),
+marked as simulated in ``meta.json``.
 
 Determinism: every random number comes from ``numpy.random.default_rng([seed, frame, view])`` (a stream per
 output image, independent of the order of work), ``default_rng([seed, frame, view, 2])`` for its simulated
-detections, or ``default_rng([seed, view])`` for a view's background, and every file is written byte-identically
+detections, ``default_rng([seed, view])`` for a view's background and ``default_rng([seed, 2²⁰, view, 3])`` for its
+plate's noise, and every file is written byte-identically
 (:mod:`jaxmocap.io.sequence`).
 """
 
@@ -48,6 +50,7 @@ from jaxmocap.io import calibration, skeletons
 from jaxmocap.io import sequence as seqio
 from jaxmocap.io.mocap import JointSpec, Motion, eval_joints
 from jaxmocap.synth import detections as dets
+from jaxmocap.synth import plates
 from jaxmocap.synth.dressing import (
     HEAD_LENGTH,
     HEAD_RADIUS,
@@ -461,6 +464,11 @@ def synthesize(
     pool = ThreadPoolExecutor(max_workers=2)
     writes = []
     try:
+        for v in range(V):
+            plate = plates.plate_image(
+                np.random.default_rng([int(seed), 1 << 20, v, 3]), backgrounds[v], noise
+            )
+            writes.append(pool.submit(seqio.write_rgb, plates.plate_path(out, cams.names[v]), plate))
         pending = render_frame(int(src[0]))
         for k, i in enumerate(src):
             i = int(i)
@@ -546,6 +554,7 @@ def synthesize(
         "noise": {"rgb_sigma": noise, "depth_sigma_m": depth_noise, "depth_smooth_px": depth_smooth},
         "illumination_amplitude": illumination,
         "motion_blur_frames": int(blur),
+        "plates": f"views/<camera>/{plates.PLATE}",
         "detections": {
             "simulated": True,
             "format": "OpenPose BODY_25B JSON",

@@ -258,7 +258,9 @@ def test_two_runs_with_one_seed_are_byte_identical(tmp_path):
     b = synth.synthesize("demo", tmp_path / "b", seed=11, **kw).root
     c = synth.synthesize("demo", tmp_path / "c", seed=12, **kw).root
     files = sorted(p.relative_to(a) for p in a.rglob("*") if p.is_file())
-    assert len(files) == 4 + 2 * 5 * 2  # 4 sequence files; 2 views x (4 images + detections) x 2 frames
+    assert len(files) == 4 + 2 * (
+        1 + 5 * 2
+    )  # 4 sequence files; 2 views x (a plate + (4 images + detections) x 2 frames)
     assert files == sorted(p.relative_to(b) for p in b.rglob("*") if p.is_file())
     for rel in files:
         assert (a / rel).read_bytes() == (b / rel).read_bytes(), rel
