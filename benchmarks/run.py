@@ -228,6 +228,12 @@ SCRIPTS: dict[str, Script] = {
         writes=("foreground_iou.md",),
         fn=_foreground,
     ),
+    "plate_subtraction": Script(
+        "Background subtraction against the synthesiser's plates",
+        "experiments/plate_subtraction.py",
+        "--size 320x240",
+        writes=("plate_subtraction.md",),
+    ),
     "accuracy": Script(
         "Tracking accuracy", "experiments/accuracy.py", writes=("accuracy.md",), fn=_accuracy, slow=True
     ),

@@ -5,8 +5,9 @@ Subcommands:
 * ``jaxmocap calib show FILE`` — print the cameras of any calibration the project reads (OpenCV FileStorage
   YAML/XML, Pose2Sim/OpenCV TOML, caliscope TOML, Qualisys ``.qca.txt``, a PARSEC ``CALIB`` folder).
 * ``jaxmocap calib convert IN OUT.toml`` — write it as the canonical Pose2Sim-layout TOML.
-* ``jaxmocap synth --motion CLIP --rig {stereo,frontal-lateral,ring4,FILE} --out DIR [...]`` — render a synthetic
-  multi-view sequence of a mocap clip with exact ground truth (:func:`jaxmocap.synth.generate.synthesize`).
+* ``jaxmocap synth --motion CLIP [--mapping FILE.toml] [--scale S] --rig {stereo,frontal-lateral,ring4,FILE} --out
+  DIR [...]`` — render a synthetic multi-view sequence of a mocap clip of any skeleton with exact ground truth
+  (:func:`jaxmocap.synth.generate.synthesize`).
 * ``jaxmocap plot RUN`` — draw a tracking run (trajectories, 3D skeleton, per-frame quality) as PNG files.
 * ``jaxmocap sweep SEQ ... --filters F,G --seeds A:B --out results.csv`` — sequences × filters × seeds, the
   seeds in one compiled call spread over the available devices, into one table (:mod:`jaxmocap.tracking.sweep`).
@@ -71,6 +72,8 @@ def _synth(args) -> int:
             rig=args.rig,
             asf=args.asf,
             scale=args.scale,
+            mapping=args.mapping,
+            up_axis=args.up_axis,
             frames=args.frames,
             fps=args.fps,
             size=args.size,
@@ -681,9 +684,17 @@ def build_parser() -> argparse.ArgumentParser:
         description="Render a synthetic multi-view sequence (RGB, mask, part labels, virtual depth, calibration, "
         "ground truth, body file) of a motion-capture clip; see README 'Sequence folder format'.",
     )
-    syn.add_argument("--motion", required=True, help="a .bvh or .amc clip, or 'demo' (the bundled CMU walk)")
+    syn.add_argument(
+        "--motion",
+        required=True,
+        help="a .bvh or .amc clip of any skeleton, or 'demo' (the bundled CMU walk)",
+    )
     syn.add_argument("--asf", help="ASF skeleton of an .amc clip (default: SS.asf next to SS_TT.amc)")
-    syn.add_argument("--scale", type=float, help="metres per file unit (BVH default: the CMU conversion's)")
+    syn.add_argument(
+        "--mapping", help="TOML file naming file joints for evaluation joints (default: by names, then shape)"
+    )
+    syn.add_argument("--scale", type=float, help="metres per file unit (BVH default: detected from the legs)")
+    syn.add_argument("--up-axis", choices=("y", "z"), help="the file's up axis (BVH default: detected)")
     syn.add_argument("--rig", default="stereo", help="stereo, frontal-lateral, ring4 or a calibration file")
     syn.add_argument("--frames", help="source frame range A:B (default: the whole clip)")
     syn.add_argument("--fps", type=float, default=30.0, help="output frame rate (default 30; subsamples)")

@@ -1,12 +1,10 @@
 """Synthetic multi-view sequences from real motion capture, with exact ground truth.
 
-The subject is the **mocap skeleton itself**, dressed (:func:`dress`): every bone of non-zero length becomes a
-truncated cone with spherical caps from its parent joint to its child joint (end sites included, so the head,
-fingers, thumbs and toes have their bones), with radii by body part (:data:`ROLE_RADII`), and the head becomes a
-spheroid centred on the middle of the head bone (polar length :data:`HEAD_LENGTH`, equatorial radius
-:data:`HEAD_RADIUS`). Clothing colours are per limb (:data:`ROLE_COLOURS`, the same on both sides); head, neck
-and hands are skin-coloured. A tracker's body model (the ``body.toml`` written with the sequence, the
-``full25`` preset with the subject's measured lengths and these radii) is an approximation of that scene.
+The clip may use any skeleton: :func:`load_clip` recognises its evaluation joints, unit and up axis
+(:mod:`jaxmocap.io.skeletons`). The subject is the **mocap skeleton itself**, dressed (:mod:`jaxmocap.synth.dressing`):
+cones with spherical caps for the bones, a spheroid head, clothing colours per limb and skin-coloured head, neck
+and hands. A tracker's body model (the ``body.toml`` written with the sequence, the ``full25`` preset with the
+subject's measured lengths and these radii) is an approximation of that scene.
 
 Every view is ray-cast exactly per pixel (:func:`jaxmocap.geometry.render.render_view`), so depth, foreground mask and
 part labels agree with the calibration's projection model; then, on the host, Lambert shading under a world
@@ -17,20 +15,25 @@ millimetres; :func:`jaxmocap.geometry.render.virtual_depth`).
 
 Rigs and backgrounds: :mod:`jaxmocap.synth.stage`.
 
+Each view also gets its empty-scene plate (:mod:`jaxmocap.synth.plates`, ``views/<camera>/background.png``) and
+simulated OpenPose BODY_25B detections per frame (:mod:`jaxmocap.synth.detections`, ``views/<camera>/openpose/``),
+marked as simulated in ``meta.json``.
+
 Determinism: every random number comes from ``numpy.random.default_rng([seed, frame, view])`` (a stream per
-output image, independent of the order of work) or ``default_rng([seed, view])`` for a view's background, and
-every file is written byte-identically (:mod:`jaxmocap.io.sequence`).
+output image, independent of the order of work), ``default_rng([seed, frame, view, 2])`` for its simulated
+detections, ``default_rng([seed, view])`` for a view's background and ``default_rng([seed, 2²⁰, view, 3])`` for its
+plate's noise, and every file is written byte-identically
+(:mod:`jaxmocap.io.sequence`).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 import os
 import pathlib
 import shutil
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from importlib import resources
 
@@ -43,9 +46,23 @@ from jaxmocap.choices import parse_frames
 from jaxmocap.errors import MocapInputError
 from jaxmocap.geometry import body as body_mod
 from jaxmocap.geometry import camera, render
-from jaxmocap.io import calibration
+from jaxmocap.io import calibration, skeletons
 from jaxmocap.io import sequence as seqio
-from jaxmocap.io.mocap import Motion, body_dimensions_from_motion, eval_joints, eval_mapping
+from jaxmocap.io.mocap import JointSpec, Motion, eval_joints
+from jaxmocap.synth import detections as dets
+from jaxmocap.synth import plates
+from jaxmocap.synth.dressing import (
+    HEAD_LENGTH,
+    HEAD_RADIUS,
+    ROLE_COLOURS,
+    ROLE_RADII,
+    Dressing,
+    body_dimensions,
+    dress,
+    dressing_points,
+    scene_primitives,
+    toe_points,
+)
 
 # the rig and background functions stay part of this module's API (__all__)
 from jaxmocap.synth.stage import (
@@ -66,6 +83,7 @@ __all__ = [
     "Dressing",
     "demo_clip",
     "load_motion",
+    "load_clip",
     "dress",
     "dressing_points",
     "scene_primitives",
@@ -83,48 +101,9 @@ __all__ = [
     "CAPS",
     "LIGHT",
     "CMU_LICENCE",
+    "BANDAI_LICENCE",
+    "default_licence",
 ]
-
-#: Cone radii (metres) at the parent and child end of a bone, by body part.
-ROLE_RADII: dict[str, tuple[float, float]] = {
-    "torso": (0.135, 0.135),
-    "pelvis": (0.10, 0.09),
-    "clavicle": (0.06, 0.055),
-    "upper_arm": (0.05, 0.04),
-    "forearm": (0.04, 0.03),
-    "hand": (0.03, 0.025),
-    "finger": (0.022, 0.018),
-    "thumb": (0.015, 0.012),
-    "thigh": (0.08, 0.06),
-    "shin": (0.055, 0.04),
-    "foot": (0.04, 0.035),
-    "toe": (0.035, 0.03),
-    "neck": (0.05, 0.05),
-    "limb": (0.04, 0.04),
-}
-
-#: Clothing colours (RGB in [0, 1]) by body part, the same for the left and right limb; skin for bare parts.
-ROLE_COLOURS: dict[str, tuple[float, float, float]] = {
-    "torso": (0.20, 0.30, 0.65),
-    "clavicle": (0.20, 0.30, 0.65),
-    "upper_arm": (0.70, 0.15, 0.15),
-    "forearm": (0.85, 0.60, 0.10),
-    "pelvis": (0.25, 0.25, 0.28),
-    "thigh": (0.15, 0.55, 0.25),
-    "shin": (0.45, 0.20, 0.55),
-    "foot": (0.12, 0.12, 0.12),
-    "toe": (0.12, 0.12, 0.12),
-    "limb": (0.10, 0.55, 0.60),
-    "neck": render.SKIN,
-    "hand": render.SKIN,
-    "finger": render.SKIN,
-    "thumb": render.SKIN,
-    "head": render.SKIN,
-}
-
-#: Head spheroid: polar length (chin to crown) and equatorial radius, metres.
-HEAD_LENGTH = 0.22
-HEAD_RADIUS = 0.09
 
 #: Rendered cones have spherical caps (rounded limbs without gaps at bent joints).
 CAPS = "sphere"
@@ -135,25 +114,6 @@ AMBIENT = 0.35
 
 #: Period (seconds) of the global illumination change.
 ILLUMINATION_PERIOD = 4.0
-
-# Body part of a bone from its (lower-case) name, first match wins.
-_ROLE_WORDS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("pelvis", ("hipjoint", "pelvis")),
-    ("torso", ("hips", "root", "back", "spine", "chest", "thorax", "abdomen", "torso")),
-    ("toe", ("toe",)),
-    ("foot", ("foot", "ankle")),
-    ("finger", ("finger", "index", "middle", "ring", "pinky")),
-    ("thumb", ("thumb",)),
-    ("hand", ("hand", "wrist", "palm")),
-    ("forearm", ("radius", "forearm", "elbow", "ulna")),
-    ("clavicle", ("clavicle", "collar")),
-    ("upper_arm", ("humerus", "shoulder", "arm")),
-    ("shin", ("tibia", "knee", "shin", "calf")),
-    ("thigh", ("femur", "upleg", "thigh", "hip")),
-    ("shin", ("leg",)),
-    ("neck", ("neck",)),
-    ("head", ("head",)),
-)
 
 _DEMO = ("02_01.amc", "02.asf")
 
@@ -179,16 +139,27 @@ def _find_asf(amc: pathlib.Path) -> pathlib.Path:
     raise MocapInputError(amc, "cannot tell which .asf skeleton goes with this .amc motion: pass it (--asf)")
 
 
-def load_motion(
-    path: str | os.PathLike | Motion, asf: str | os.PathLike | None = None, scale: float | None = None
-) -> Motion:
-    """A :class:`~jaxmocap.io.mocap.Motion` from a ``.bvh`` file (``scale`` metres per unit, default the CMU
-    conversion's :data:`jaxmocap.io.bvh.CMU_BVH_SCALE`), an ``.amc`` file with its ``asf`` skeleton (found next
-    to it when not given; ``scale`` default from the ASF units) or ``"demo"`` (:func:`demo_clip`)."""
-    from jaxmocap.io import asfamc, bvh
+def load_clip(
+    path: str | os.PathLike | Motion,
+    asf: str | os.PathLike | None = None,
+    scale: float | None = None,
+    mapping: Mapping[str, JointSpec] | str | os.PathLike | None = None,
+    up_axis: str | None = None,
+) -> tuple[Motion, skeletons.Recognition]:
+    """A clip of any skeleton, recognised and normalised (:func:`jaxmocap.io.skeletons.load_mocap`):
+    ``(motion, recognition)``.
 
+    ``path``: a ``.bvh`` file, an ``.amc`` file with its ``asf`` skeleton (found next to it when not given),
+    ``"demo"`` (:func:`demo_clip`) or a :class:`~jaxmocap.io.mocap.Motion` (recognised and normalised as it is);
+    ``scale`` metres per file unit and ``up_axis`` are detected for a BVH unless given; ``mapping`` (a mapping
+    or a TOML file) names evaluation joints the names and the tree's shape would not place."""
     if isinstance(path, Motion):
-        return path
+        given = skeletons.load_mapping(mapping) if isinstance(mapping, str | os.PathLike) else mapping
+        try:
+            rec = skeletons.recognise(path, given)
+            return skeletons.normalise(path, rec.mapping), rec
+        except ValueError as e:
+            raise MocapInputError(path.source or None, str(e)) from None
     if os.fspath(path) == "demo" and not os.path.isfile("demo"):
         path, default_asf = demo_clip()
         asf = default_asf if asf is None else asf
@@ -196,183 +167,20 @@ def load_motion(
     if not p.is_file():
         raise MocapInputError(p, "no such motion file")
     ext = p.suffix.lower()
-    if ext == ".bvh":
-        return bvh.load_bvh(p, scale=bvh.CMU_BVH_SCALE if scale is None else float(scale))
-    if ext == ".amc":
-        skel = pathlib.Path(asf) if asf is not None else _find_asf(p)
-        return asfamc.load_asfamc(skel, p, scale=scale)
-    raise MocapInputError(p, f"unknown motion format {ext!r} (expected .bvh or .amc with an .asf)")
+    if ext == ".amc" and asf is None:
+        asf = _find_asf(p)
+    if ext not in (".bvh", ".amc"):
+        raise MocapInputError(p, f"unknown motion format {ext!r} (expected .bvh or .amc with an .asf)")
+    return skeletons.load_mocap(p, asf=asf, scale=scale, up_axis=up_axis, mapping=mapping)
 
 
-# ---------------------------------------------------------------------------------------------------------------
-# Dressing the skeleton
-
-
-def _role(name: str) -> str:
-    low = name.lower()
-    for role, words in _ROLE_WORDS:
-        if any(w in low for w in words):
-            return role
-    return "limb"
-
-
-@dataclasses.dataclass(frozen=True)
-class Dressing:
-    """How a skeleton is dressed; static (hashable) except for the radii.
-
-    Points are the ``J`` joints, then the ``E`` end sites, then two head points (the ends of the head
-    spheroid's polar axis); ``parents`` has one entry per point (``−1`` for the root and the head points).
-    ``bones``: child point of each cone (label order), ``part_names`` / ``part_roles`` per label (cones, then
-    ``"head"``), ``radius_start``/``radius_end`` ``(C,)``, ``head_bone``: ``(head joint, its end site point)``.
-    """
-
-    parents: tuple[int, ...]
-    bones: tuple[int, ...]
-    part_names: tuple[str, ...]
-    part_roles: tuple[str, ...]
-    radius_start: tuple[float, ...]
-    radius_end: tuple[float, ...]
-    head_bone: tuple[int, int]
-    head_length: float = HEAD_LENGTH
-    head_radius: float = HEAD_RADIUS
-
-    @property
-    def num_cones(self) -> int:
-        return len(self.bones)
-
-    @property
-    def head_points(self) -> tuple[int, int]:
-        n = len(self.parents)
-        return (n - 2, n - 1)
-
-    def colours(self) -> np.ndarray:
-        """``(C + 1, 3)`` RGB in [0, 1] per label."""
-        return np.asarray([ROLE_COLOURS.get(r, ROLE_COLOURS["limb"]) for r in self.part_roles], np.float64)
-
-
-def dress(motion: Motion, head_length: float = HEAD_LENGTH, head_radius: float = HEAD_RADIUS) -> Dressing:
-    """Cones for every bone of ``motion`` (parent → child, end sites included) of non-zero rest length, bones
-    repeating another one's end points left out; the head bone (the one named ``head``) becomes the spheroid.
-
-    A bone is named after its parent joint (BVH and ASF name a bone after the joint that moves it), with
-    ``>child`` appended when the parent starts several bones; its body part comes from the name (and the child's
-    for bones leaving the torso towards the legs or arms).
-    """
-    from jaxmocap.io.mocap import rest_positions
-
-    X, E = rest_positions(motion)
-    names = list(motion.joint_names)
-    J = len(names)
-    child_names = names + [names[p] + "_end" for p in motion.end_parents]
-    parents = list(motion.parents) + list(motion.end_parents)
-    pts = np.concatenate([X, E], 0) if len(E) else X
-    mapping = eval_mapping(motion)
-    head_spec = mapping["head"]
-    if isinstance(head_spec, str):
-        raise ValueError(f"{motion.source}: the head joint needs an end site")
-    head_joint = motion.joint_index(head_spec[1])
-    head_end = J + motion.end_parents.index(head_joint)
-    kept, seen = [], []
-    for c in range(len(parents)):
-        p = parents[c]
-        if p < 0 or c == head_end or np.linalg.norm(pts[c] - pts[p]) <= 1e-6:
-            continue
-        ends = (pts[p], pts[c])
-        if any(np.allclose(ends, s, atol=1e-6) for s in seen):
-            continue
-        seen.append(ends)
-        kept.append(c)
-    n_children = {p: sum(parents[c] == p for c in kept) for p in range(J)}
-    bones, part_names, roles, ra, rb = [], [], [], [], []
-    for c in kept:
-        p = parents[c]
-        role = _role(names[p])
-        child_role = _role(child_names[c])
-        if role == "torso" and child_role in ("thigh", "pelvis"):
-            role = "pelvis"
-        elif role == "torso" and child_role in ("clavicle", "upper_arm"):
-            role = "clavicle"
-        elif role == "head":
-            role = "neck"
-        r0, r1 = ROLE_RADII.get(role, ROLE_RADII["limb"])
-        bones.append(c)
-        part_names.append(names[p] if n_children[p] <= 1 else f"{names[p]}>{child_names[c]}")
-        roles.append(role)
-        ra.append(r0)
-        rb.append(r1)
-    parents = parents + [-1, -1]
-    return Dressing(
-        parents=tuple(parents),
-        bones=tuple(bones),
-        part_names=tuple(part_names) + ("head",),
-        part_roles=tuple(roles) + ("head",),
-        radius_start=tuple(ra),
-        radius_end=tuple(rb),
-        head_bone=(head_joint, head_end),
-        head_length=float(head_length),
-        head_radius=float(head_radius),
-    )
-
-
-def dressing_points(motion: Motion, dressing: Dressing, frames: Sequence[int] | np.ndarray) -> np.ndarray:
-    """``(T, P, 3)`` points of :class:`Dressing` at the source frames ``frames``: joints, end sites, and the head
-    spheroid's axis ends ``m ± (head_length/2) â`` with ``m`` the middle of the head bone and ``â`` its
-    direction."""
-    idx = np.asarray(frames, dtype=np.int64)
-    ends = motion.end_positions if motion.end_positions is not None else np.zeros((motion.num_frames, 0, 3))
-    pts = np.concatenate([motion.positions[idx], ends[idx]], axis=1)
-    hj, he = dressing.head_bone
-    a, b = pts[:, hj], pts[:, he]
-    axis = b - a
-    axis = axis / np.maximum(np.linalg.norm(axis, axis=-1, keepdims=True), 1e-12)
-    mid = 0.5 * (a + b)
-    half = 0.5 * dressing.head_length
-    return np.concatenate([pts, (mid - half * axis)[:, None], (mid + half * axis)[:, None]], axis=1)
-
-
-@functools.partial(jax.jit, static_argnames=("dressing",))
-def _scene(points: jnp.ndarray, dressing: Dressing) -> render.Primitives:
-    return render.primitives_from_skeleton(
-        points,
-        dressing.parents,
-        jnp.asarray(dressing.radius_start, points.dtype),
-        jnp.asarray(dressing.radius_end, points.dtype),
-        bones=dressing.bones,
-        head=dressing.head_points,
-        head_radius=dressing.head_radius,
-    )
-
-
-def scene_primitives(points: np.ndarray, dressing: Dressing) -> render.Primitives:
-    """World :class:`jaxmocap.geometry.render.Primitives` of one frame's points ``(P, 3)`` (float32): ``C`` cones in
-    :attr:`Dressing.bones` order, then the head spheroid (label ``C``)."""
-    return _scene(jnp.asarray(points, jnp.float32), dressing)
-
-
-def body_dimensions(motion: Motion, dressing: Dressing) -> dict[str, float]:
-    """``full25`` dimensions of the dressed subject: lengths measured on the skeleton
-    (:func:`jaxmocap.io.mocap.body_dimensions_from_motion`), the radii of the dressing, and the head of the
-    dressing (``head_length``; ``neck_length`` lowered so that the model's head centre stays the middle of the
-    head bone, the ground-truth ``head`` joint)."""
-    dims = body_dimensions_from_motion(motion)
-    bone_len = dims["head_length"]
-    dims["head_length"] = dressing.head_length
-    dims["head_radius"] = dressing.head_radius
-    dims["neck_length"] = max(0.0, dims["neck_length"] - 0.5 * (dressing.head_length - bone_len))
-    r = ROLE_RADII
-    dims.update(
-        torso_radius_bottom=r["torso"][0],
-        torso_radius_top=r["torso"][1],
-        upper_arm_radius_top=r["upper_arm"][0],
-        upper_arm_radius_bottom=r["upper_arm"][1],
-        forearm_radius_top=r["forearm"][0],
-        forearm_radius_bottom=r["forearm"][1],
-        thigh_radius_top=r["thigh"][0],
-        thigh_radius_bottom=r["thigh"][1],
-        shin_radius_top=r["shin"][0],
-        shin_radius_bottom=r["shin"][1],
-    )
-    return dims
+def load_motion(
+    path: str | os.PathLike | Motion, asf: str | os.PathLike | None = None, scale: float | None = None
+) -> Motion:
+    """The motion of :func:`load_clip` (a :class:`~jaxmocap.io.mocap.Motion` is returned as it is)."""
+    if isinstance(path, Motion):
+        return path
+    return load_clip(path, asf, scale)[0]
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -471,13 +279,34 @@ def view_images(
     return rgb8, depth_mm, np.asarray(first.label)
 
 
-#: Licence line recorded for a clip by default: the CMU database's acknowledgement (every skeleton the project
-#: maps to the evaluation joints is a CMU one); pass ``licence=`` for clips from elsewhere.
+#: Licence line recorded for a clip of a CMU skeleton: the CMU database's acknowledgement.
 CMU_LICENCE = (
     "CMU Graphics Lab Motion Capture Database (mocap.cs.cmu.edu), free for research and commercial use, not for "
     "resale: 'The data used in this project was obtained from mocap.cs.cmu.edu. The database was created with "
     "funding from NSF EIA-0196217.'"
 )
+
+
+#: Licence line recorded for a clip of the Bandai-Namco research set.
+BANDAI_LICENCE = "Bandai Namco Research Motion Dataset, CC BY-NC 4.0 (non-commercial use, attribution)"
+
+
+def default_licence(family: str) -> str:
+    """The licence line of a clip whose skeleton was recognised as ``family`` (:mod:`jaxmocap.io.skeletons`):
+    the CMU terms, the Bandai-Namco set's, or a request to state it."""
+    passes = family.split("+")
+    if any(p.startswith("cmu") for p in passes):
+        return CMU_LICENCE
+    if "bandai_namco" in passes:
+        return BANDAI_LICENCE
+    return "not stated (pass --licence)"
+
+
+def detections_path(root: str | os.PathLike, view: str, frame: int) -> pathlib.Path:
+    """``root/views/<view>/openpose/<view>_NNNNNNNNNNNN_keypoints.json`` (OpenPose's own naming), folder created."""
+    folder = pathlib.Path(root) / seqio.VIEWS / view / "openpose"
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder / f"{view}_{int(frame):012d}_keypoints.json"
 
 
 def _prepare_output(out: pathlib.Path, overwrite: bool) -> None:
@@ -529,6 +358,8 @@ def synthesize(
     rig: str | os.PathLike | camera.Rig = "stereo",
     asf: str | os.PathLike | None = None,
     scale: float | None = None,
+    mapping: Mapping[str, JointSpec] | str | os.PathLike | None = None,
+    up_axis: str | None = None,
     frames: str | tuple[int | None, int | None] | None = None,
     fps: float = 30.0,
     size: str | tuple[int, int] | None = None,
@@ -540,6 +371,7 @@ def synthesize(
     depth_smooth: float = 1.5,
     illumination: float = 0.0,
     blur: int = 1,
+    detections: bool = True,
     overwrite: bool = False,
     licence: str | None = None,
     progress: Callable[[int, int], None] | None = None,
@@ -549,7 +381,7 @@ def synthesize(
 
     Args:
       motion: a ``.bvh``/``.amc`` path, a :class:`~jaxmocap.io.mocap.Motion`, or ``"demo"``
-        (:func:`load_motion`); ``asf``, ``scale``: see :func:`load_motion`.
+        (:func:`load_clip`); ``asf``, ``scale``, ``mapping``, ``up_axis``: see :func:`load_clip`.
       rig: a preset name (:data:`PRESETS`), a calibration file, or a :class:`~jaxmocap.geometry.camera.Rig`.
       frames: source frame range ``"A:B"`` (default the whole clip); ``fps``: output rate, the source is
         subsampled every ``round(source fps / fps)`` frames.
@@ -562,15 +394,14 @@ def synthesize(
       illumination: amplitude ``A`` of a global illumination change ``1 + A sin(2π t / 4 s + φ)``.
       blur: number of consecutive source frames averaged per image (motion blur), centred on the frame;
         mask, depth and labels are those of the central frame.
+      detections: write simulated OpenPose BODY_25B detections per view and frame
+        (:mod:`jaxmocap.synth.detections`, in ``views/<camera>/openpose/``).
       overwrite: replace an existing sequence in ``out``.
-      licence: the clip's licence line for ``meta.json`` (default :data:`CMU_LICENCE`).
+      licence: the clip's licence line for ``meta.json`` (default :func:`default_licence` of its skeleton).
       progress: called as ``progress(done, total)`` after each frame.
     """
-    m = load_motion(motion, asf, scale)
-    try:
-        ej_all = eval_joints(m)
-    except KeyError as e:
-        raise MocapInputError(m.source or None, str(e.args[0])) from None
+    m, rec = load_clip(motion, asf, scale, mapping, up_axis)
+    ej_all = eval_joints(m, rec.mapping)
     if not (fps > 0 and math.isfinite(fps)):
         raise ValueError(f"fps must be positive, got {fps}")
     if fps > m.fps * (1 + 1e-9):
@@ -587,7 +418,7 @@ def synthesize(
     step = max(1, int(round(m.fps / fps)))
     src = np.arange(a, b, step)
     T = len(src)
-    dressing = dress(m)
+    dressing = dress(m, rec.mapping)
     points = dressing_points(m, dressing, np.arange(m.num_frames))
     joints = ej_all[src]
     blur_lo = max(0, a - (int(blur) - 1) // 2)
@@ -609,6 +440,15 @@ def synthesize(
     K, dist, Rv, tv = (np.asarray(x, np.float64) for x in (cams.K, cams.dist, cams.R, cams.t))
     lights = [jnp.asarray(Rv[v] @ light_world / np.linalg.norm(light_world), jnp.float32) for v in range(V)]
     half = (int(blur) - 1) // 2
+    detector = None
+    if detections:
+        kp, normals = dets.keypoints_3d(
+            ej_all + offset,
+            points[:, list(dressing.head_points)],
+            dressing.head_radius,
+            points[:, list(toe_points(m, rec.mapping))],
+        )
+        detector = dets.Detector(K, dist, Rv, tv, cams.image_size, kp, normals, int(blur))
 
     def render_frame(i: int):
         prims = scene_primitives(points[i], dressing)
@@ -624,6 +464,11 @@ def synthesize(
     pool = ThreadPoolExecutor(max_workers=2)
     writes = []
     try:
+        for v in range(V):
+            plate = plates.plate_image(
+                np.random.default_rng([int(seed), 1 << 20, v, 3]), backgrounds[v], noise
+            )
+            writes.append(pool.submit(seqio.write_rgb, plates.plate_path(out, cams.names[v]), plate))
         pending = render_frame(int(src[0]))
         for k, i in enumerate(src):
             i = int(i)
@@ -636,6 +481,11 @@ def synthesize(
                 2 * math.pi * (k * step / m.fps) / ILLUMINATION_PERIOD + phase
             )
             subs = [min(max(i + d - half, 0), m.num_frames - 1) for d in range(int(blur))]
+            if detector is not None:
+                r_a, r_b = np.asarray(dressing.radius_start), np.asarray(dressing.radius_end)
+                own = dets.own_labels(
+                    kp[i], scene["cone_a"][-1], scene["cone_b"][-1], r_a, r_b, dressing.num_cones
+                )
             others = {s: render_frame(s)[1] for s in subs if s != i}
             for v in range(V):
                 renders = [current[v] if s == i else others[s][v] for s in subs]
@@ -650,6 +500,9 @@ def synthesize(
                     pool.submit(seqio.write_depth, seqio.frame_path(out, name, "depth", k), depth_mm),
                     pool.submit(seqio.write_labels, seqio.frame_path(out, name, "labels", k), labels),
                 ]
+                if detector is not None:
+                    found = detector.frame(np.random.default_rng([int(seed), k, v, 2]), v, i, labels, own)
+                    writes.append(pool.submit(dets.write_openpose_json, detections_path(out, name, k), found))
             while len(writes) > 16 * V:
                 writes.pop(0).result()
             if progress is not None:
@@ -660,7 +513,7 @@ def synthesize(
         pool.shutdown(wait=True, cancel_futures=True)
 
     seqio.write_calibration(out, cams)
-    dims = body_dimensions(m, dressing)
+    dims = body_dimensions(m, dressing, rec.mapping)
     body_mod.save_body(out / seqio.BODY, "full25", dims)
     seqio.write_groundtruth(
         out,
@@ -683,7 +536,8 @@ def synthesize(
         "generator": f"jaxmocap {__version__} synth",
         "source": {
             "clip": pathlib.Path(m.source).name if m.source else "",
-            "licence": CMU_LICENCE if licence is None else str(licence),
+            "licence": default_licence(rec.family) if licence is None else str(licence),
+            "skeleton": rec.to_json(),
             "fps": m.fps,
             "frames": [a, b],
             "step": step,
@@ -700,6 +554,15 @@ def synthesize(
         "noise": {"rgb_sigma": noise, "depth_sigma_m": depth_noise, "depth_smooth_px": depth_smooth},
         "illumination_amplitude": illumination,
         "motion_blur_frames": int(blur),
+        "plates": f"views/<camera>/{plates.PLATE}",
+        "detections": {
+            "simulated": True,
+            "format": "OpenPose BODY_25B JSON",
+            "path": "views/<camera>/openpose/<camera>_NNNNNNNNNNNN_keypoints.json",
+            "model": dataclasses.asdict(detector.model),
+        }
+        if detector is not None
+        else None,
         "caps": CAPS,
         "parts": list(dressing.part_names),
         "part_roles": list(dressing.part_roles),
