@@ -254,6 +254,11 @@ SCRIPTS: dict[str, Script] = {
         "experiments/make_synth_montages.py",
         writes=("synth_*.png",),
     ),
+    "scene_montages": Script(
+        "Montages of the textured subject in the 3D room: detections, plate, subtraction, depth, skin blobs",
+        "experiments/make_scene_montages.py",
+        writes=("scene_*.png",),
+    ),
     "parsec_track": Script(
         "PARSEC sequenceB_2 tracked, against bodytrack",
         "experiments/parsec_track.py",

@@ -85,6 +85,7 @@ def _synth(args) -> int:
             depth_smooth=args.depth_smooth,
             illumination=args.illumination,
             blur=args.blur,
+            clothing=args.clothing,
             overwrite=args.overwrite,
             licence=args.licence,
             progress=progress,
@@ -700,7 +701,9 @@ def build_parser() -> argparse.ArgumentParser:
     syn.add_argument("--fps", type=float, default=30.0, help="output frame rate (default 30; subsamples)")
     syn.add_argument("--size", help="image size WxH (default 640x480, or the calibration's)")
     syn.add_argument("--seed", type=int, default=0, help="seed of every random number (default 0)")
-    syn.add_argument("--background", default="photo", help="photo, plain or an image file (default photo)")
+    syn.add_argument(
+        "--background", default="photo", help="photo, plain, an image file, or room (a 3D room with shadows)"
+    )
     syn.add_argument("--clutter", default="none", help="procedural clutter: none, low, medium, high or 0-1")
     syn.add_argument(
         "--noise", type=float, default=0.01, help="RGB noise sigma, 1 = full scale (default 0.01)"
@@ -709,6 +712,9 @@ def build_parser() -> argparse.ArgumentParser:
     syn.add_argument("--depth-smooth", type=float, default=1.5, help="depth smoothing in px (default 1.5)")
     syn.add_argument("--illumination", type=float, default=0.0, help="illumination change amplitude 0-1")
     syn.add_argument("--blur", type=int, default=1, help="motion blur: source frames averaged (default 1)")
+    syn.add_argument(
+        "--clothing", default="plain", choices=("plain", "textured"), help="clothing texture (default plain)"
+    )
     syn.add_argument("--licence", help="licence line of the clip for meta.json (default: the CMU terms)")
     syn.add_argument("--overwrite", action="store_true", help="replace an existing sequence in --out")
     syn.add_argument("--quiet", action="store_true", help="no progress output")

@@ -142,9 +142,10 @@ class Dressing:
         n = len(self.parents)
         return (n - 2, n - 1)
 
-    def colours(self) -> np.ndarray:
-        """``(C + 1, 3)`` RGB in [0, 1] per label."""
-        return np.asarray([ROLE_COLOURS.get(r, ROLE_COLOURS["limb"]) for r in self.part_roles], np.float64)
+    def colours(self, palette: Mapping[str, tuple[float, float, float]] | None = None) -> np.ndarray:
+        """``(C + 1, 3)`` RGB in [0, 1] per label: :data:`ROLE_COLOURS`, with ``palette`` overriding parts."""
+        table = {**ROLE_COLOURS, **(palette or {})}
+        return np.asarray([table.get(r, table["limb"]) for r in self.part_roles], np.float64)
 
 
 def dress(

@@ -48,9 +48,10 @@ from jaxmocap.geometry import body as body_mod
 from jaxmocap.geometry import camera, render
 from jaxmocap.io import calibration, skeletons
 from jaxmocap.io import sequence as seqio
-from jaxmocap.io.mocap import JointSpec, Motion, eval_joints
+from jaxmocap.io.mocap import JointSpec, Motion, eval_joints, forward_kinematics
 from jaxmocap.synth import detections as dets
-from jaxmocap.synth import plates
+from jaxmocap.synth import plates, texture
+from jaxmocap.synth import scene as room_mod
 from jaxmocap.synth.dressing import (
     HEAD_LENGTH,
     HEAD_RADIUS,
@@ -229,10 +230,10 @@ def _form_image(normal, label, colours, light, background, illumination, ambient
     :func:`jaxmocap.geometry.render.shade` / :func:`jaxmocap.geometry.render.composite`, fused in one XLA loop):
     ``I = clip(a · colour[label] · (ambient + (1 − ambient) max(0, n·l̂)), 0, 1)`` on the body and
     ``clip(a · background, 0, 1)`` elsewhere. ``normal (H, W, 3)`` camera frame, ``label (H, W)``, ``colours
-    (L, 3)``, ``light (3,)`` unit in the camera frame, ``background (H, W, 3)`` in [0, 1]. Returns float32
-    ``(H, W, 3)`` in [0, 1]."""
+    (L, 3)`` per label or ``(H, W, 3)`` per pixel (a textured albedo), ``light (3,)`` unit in the camera frame,
+    ``background (H, W, 3)`` in [0, 1]. Returns float32 ``(H, W, 3)`` in [0, 1]."""
     lam = jnp.maximum(normal[..., 0] * light[0] + normal[..., 1] * light[1] + normal[..., 2] * light[2], 0.0)
-    col = colours[jnp.maximum(label, 0)]
+    col = colours if colours.ndim == 3 else colours[jnp.maximum(label, 0)]
     fg = illumination * col * (ambient + (1.0 - ambient) * lam)[..., None]
     out = jnp.where((label >= 0)[..., None], fg, illumination * background)
     return jnp.clip(out, 0.0, 1.0).astype(jnp.float32)
@@ -253,6 +254,7 @@ def view_images(
     noise: float = 0.01,
     depth_smooth: float = 1.5,
     depth_noise: float = 0.02,
+    albedos: Sequence[jnp.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The images of one view at one frame from its ray-cast renders.
 
@@ -263,14 +265,16 @@ def view_images(
       background: ``(H, W, 3)`` float in [0, 1]; illumination: global illumination factor.
       noise: RGB noise standard deviation (1 = full scale); depth_smooth, depth_noise: the virtual depth sensor
         (:func:`jaxmocap.geometry.render.virtual_depth`).
+      albedos: per render a ``(H, W, 3)`` albedo replacing ``colours`` (textured clothing).
 
     Returns:
       ``rgb (H, W, 3)`` uint8 — the mean of the sub-frames' shaded images plus ``N(0, noise²)``, rounded —,
       ``depth (H, W)`` uint16 millimetres and ``labels (H, W)`` int32 (−1 background) of the first render.
     """
     image = None
-    for r in renders:
-        img = _form_image(r.normal, r.label, colours, light, background, illumination, AMBIENT)
+    for k, r in enumerate(renders):
+        col = colours if albedos is None else albedos[k]
+        img = _form_image(r.normal, r.label, col, light, background, illumination, AMBIENT)
         image = img if image is None else image + img
     image = np.asarray(image) * np.float32(255.0 / len(renders))
     rgb8 = _quantise(image + rng.standard_normal(image.shape, dtype=np.float32) * np.float32(255.0 * noise))
@@ -307,6 +311,56 @@ def detections_path(root: str | os.PathLike, view: str, frame: int) -> pathlib.P
     folder = pathlib.Path(root) / seqio.VIEWS / view / "openpose"
     folder.mkdir(parents=True, exist_ok=True)
     return folder / f"{view}_{int(frame):012d}_keypoints.json"
+
+
+def _clothing(m: Motion, dressing: Dressing, colours, seed: int, offset: np.ndarray, cams: camera.Rig):
+    """``albedo(render, view, source frame) -> (H, W, 3)`` of :mod:`jaxmocap.synth.texture` for this clip."""
+    W, X = forward_kinematics(m.parents, m.translations(), m.local_rotations)
+    X = X + offset
+    J = m.num_joints
+    joint_of, axes = [], []
+    for c in dressing.bones:  # the joint that carries each cone, and the cone's direction in its frame
+        p = dressing.parents[c]
+        joint_of.append(p)
+        axes.append(m.offsets[c] if c < J else m.end_offsets[c - J])
+    hj, he = dressing.head_bone
+    joint_of.append(hj)
+    axes.append(m.offsets[he] if he < J else m.end_offsets[he - J])
+    waves, phases, amps = (
+        jnp.asarray(a, jnp.float32)
+        for a in texture.texture_waves(dressing.part_roles, np.asarray(axes), seed)
+    )
+    rays = [
+        jnp.asarray(render.pixel_rays(cams.K[v], cams.dist[v], cams.image_size[v]))
+        for v in range(cams.num_views)
+    ]
+    Rv = [jnp.asarray(cams.R[v], jnp.float32) for v in range(cams.num_views)]
+    tv = [jnp.asarray(cams.t[v], jnp.float32) for v in range(cams.num_views)]
+    idx = np.asarray(joint_of)
+
+    def albedo(r: render.Render, v: int, frame: int) -> jnp.ndarray:
+        fr = jnp.asarray(W[frame, idx], jnp.float32)
+        fx = jnp.asarray(X[frame, idx], jnp.float32)
+        return texture.textured_albedo(
+            r.depth, r.label, rays[v], Rv[v], tv[v], fr, fx, colours, waves, phases, amps
+        )
+
+    return albedo
+
+
+def _room(cams: camera.Rig, centre, light_world, points, seed: int, clutter: float):
+    """The room of :mod:`jaxmocap.synth.scene` seen by every camera, and its shadow caster covering ``points
+    (T, P, 3)``."""
+    light = light_world / np.linalg.norm(light_world)
+    centres = np.asarray(camera.camera_centres(cams.to_jax(jnp.float32)), np.float64)
+    room = room_mod.make_room(centre, centres, seed, clutter)
+    views = [
+        room_mod.room_view(room, cams.K[v], cams.dist[v], cams.R[v], cams.t[v], cams.image_size[v], light)
+        for v in range(cams.num_views)
+    ]
+    aim = np.asarray(centre, np.float64) + [0.0, 0.0, 0.9]
+    radius = float(np.linalg.norm(points.reshape(-1, 3) - aim, axis=-1).max()) + 0.3
+    return views, room_mod.ShadowCaster(aim, radius, light, views)
 
 
 def _prepare_output(out: pathlib.Path, overwrite: bool) -> None:
@@ -371,6 +425,7 @@ def synthesize(
     depth_smooth: float = 1.5,
     illumination: float = 0.0,
     blur: int = 1,
+    clothing: str = "plain",
     detections: bool = True,
     overwrite: bool = False,
     licence: str | None = None,
@@ -387,13 +442,16 @@ def synthesize(
         subsampled every ``round(source fps / fps)`` frames.
       size: ``(w, h)`` or ``"WxH"``: image size (presets default 640×480; a calibration is rescaled).
       seed: seeds every random number (noise, clutter, illumination phase).
-      background: ``"photo"``, ``"plain"`` or an image path; clutter: procedural clutter density (0–1 or
-        none/low/medium/high).
+      background: ``"photo"``, ``"plain"`` or an image path (per-view backdrops), or ``"room"``: a 3D room seen
+        consistently by every camera, in which the body casts its shadow (:mod:`jaxmocap.synth.scene`);
+        clutter: procedural clutter density (0–1 or none/low/medium/high), on the walls for a room.
       noise: RGB sensor noise standard deviation (image units, 1 = full scale).
       depth_noise: depth noise standard deviation (metres); depth_smooth: its smoothing (pixels).
       illumination: amplitude ``A`` of a global illumination change ``1 + A sin(2π t / 4 s + φ)``.
       blur: number of consecutive source frames averaged per image (motion blur), centred on the frame;
         mask, depth and labels are those of the central frame.
+      clothing: ``"plain"`` (one colour per body part) or ``"textured"`` (a solid texture per garment fixed to
+        the bones, :mod:`jaxmocap.synth.texture`).
       detections: write simulated OpenPose BODY_25B detections per view and frame
         (:mod:`jaxmocap.synth.detections`, in ``views/<camera>/openpose/``).
       overwrite: replace an existing sequence in ``out``.
@@ -408,6 +466,8 @@ def synthesize(
         raise ValueError(f"fps {fps} exceeds the clip's {m.fps}")
     if int(blur) < 1:
         raise ValueError("blur must be at least 1 frame")
+    if clothing not in ("plain", "textured"):
+        raise ValueError(f"clothing must be plain or textured, got {clothing!r}")
     for what, val in (("noise", noise), ("depth_noise", depth_noise), ("depth_smooth", depth_smooth)):
         if not (val >= 0 and math.isfinite(val)):
             raise ValueError(f"{what} must be a non-negative number, got {val}")
@@ -428,16 +488,23 @@ def synthesize(
     out = pathlib.Path(out)
     _prepare_output(out, overwrite)
 
-    colours = jnp.asarray(dressing.colours(), jnp.float32)
+    palette = texture.TEXTURED_COLOURS if clothing == "textured" else None
+    colours = jnp.asarray(dressing.colours(palette), jnp.float32)
     c, f, left = subject_frame(joints)
     light_world = LIGHT[0] * f + LIGHT[1] * left + LIGHT[2] * np.array([0.0, 0.0, 1.0])
     phase = float(np.random.default_rng([int(seed), 1 << 20]).uniform(0, 2 * math.pi))
     V = cams.num_views
-    backgrounds = [
-        jnp.asarray(background_image(background, cams.image_size[v], v, seed, clutter), jnp.float32) / 255.0
-        for v in range(V)
-    ]
     K, dist, Rv, tv = (np.asarray(x, np.float64) for x in (cams.K, cams.dist, cams.R, cams.t))
+    room_views = caster = None
+    if background == "room":
+        room_views, caster = _room(cams, c, light_world, points[blur_lo : b + int(blur)], seed, clutter)
+        backgrounds = [jnp.asarray(rv.lit) for rv in room_views]
+    else:
+        backgrounds = [
+            jnp.asarray(background_image(background, cams.image_size[v], v, seed, clutter), jnp.float32)
+            / 255.0
+            for v in range(V)
+        ]
     lights = [jnp.asarray(Rv[v] @ light_world / np.linalg.norm(light_world), jnp.float32) for v in range(V)]
     half = (int(blur) - 1) // 2
     detector = None
@@ -449,6 +516,8 @@ def synthesize(
             points[:, list(toe_points(m, rec.mapping))],
         )
         detector = dets.Detector(K, dist, Rv, tv, cams.image_size, kp, normals, int(blur))
+
+    albedo_of = _clothing(m, dressing, colours, seed, offset, cams) if clothing == "textured" else None
 
     def render_frame(i: int):
         prims = scene_primitives(points[i], dressing)
@@ -487,11 +556,20 @@ def synthesize(
                     kp[i], scene["cone_a"][-1], scene["cone_b"][-1], r_a, r_b, dressing.num_cones
                 )
             others = {s: render_frame(s)[1] for s in subs if s != i}
+            light_depth = caster.depth(prims, CAPS) if caster is not None else None
             for v in range(V):
                 renders = [current[v] if s == i else others[s][v] for s in subs]
                 rng = np.random.default_rng([int(seed), k, v])
+                bg = backgrounds[v]
+                if caster is not None:
+                    bg = jnp.asarray(room_views[v].image(caster.shadow(light_depth, v)))
+                albedos = (
+                    None
+                    if albedo_of is None
+                    else [albedo_of(r, v, s) for r, s in zip(renders, subs, strict=True)]
+                )
                 rgb8, depth_mm, labels = view_images(
-                    rng, renders, colours, lights[v], backgrounds[v], illum, noise, depth_smooth, depth_noise
+                    rng, renders, colours, lights[v], bg, illum, noise, depth_smooth, depth_noise, albedos
                 )
                 name = cams.names[v]
                 writes += [
@@ -548,12 +626,14 @@ def synthesize(
         "world_offset": offset,
         "seed": int(seed),
         "background": os.fspath(background)
-        if background in ("photo", "plain")
+        if background in ("photo", "plain", "room")
         else pathlib.Path(background).name,
         "clutter": clutter,
         "noise": {"rgb_sigma": noise, "depth_sigma_m": depth_noise, "depth_smooth_px": depth_smooth},
         "illumination_amplitude": illumination,
         "motion_blur_frames": int(blur),
+        "clothing": clothing,
+        "light": (light_world / np.linalg.norm(light_world)).round(6),
         "plates": f"views/<camera>/{plates.PLATE}",
         "detections": {
             "simulated": True,
@@ -566,7 +646,7 @@ def synthesize(
         "caps": CAPS,
         "parts": list(dressing.part_names),
         "part_roles": list(dressing.part_roles),
-        "part_colours": dressing.colours().round(4),
+        "part_colours": np.asarray(colours, np.float64).round(4),
         "body": seqio.BODY,
         "joint_names": list(body_mod.EVAL_JOINTS),
     }

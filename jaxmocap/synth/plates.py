@@ -6,8 +6,9 @@ with one exposure's sensor noise ``N(0, noise²)`` from ``default_rng([seed, 2²
 Trackers subtract it as they would a recorded plate.
 
 :func:`subtraction_iou` segments every frame of a sequence against its plates with the static-background model
-of :mod:`jaxmocap.features.foreground` (per-channel thresholds at four standard deviations of the noise, no
-morphology) and scores the masks against the rendered ones: intersection over union per frame and view.
+of :mod:`jaxmocap.features.foreground` (per-channel thresholds at four standard deviations of the noise, shadow
+removal in the room, no morphology) and scores the masks against the rendered ones: intersection over union per
+frame and view.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from jaxmocap.errors import MocapInputError
 from jaxmocap.features import foreground as fg
 from jaxmocap.io import sequence as seqio
 
-__all__ = ["PLATE", "plate_path", "plate_image", "read_plate", "subtraction_iou"]
+__all__ = ["PLATE", "ROOM_SHADOW", "plate_path", "plate_image", "read_plate", "subtraction_iou"]
 
 #: File name of a view's plate inside ``views/<camera>/``.
 PLATE = "background.png"
@@ -48,10 +49,15 @@ def read_plate(root: str | os.PathLike, view: str) -> np.ndarray:
     return seqio.read_rgb(path)
 
 
+#: Shadow test for the room's shadows: a full shadow darkens the floor to ``ROOM_AMBIENT / (ROOM_AMBIENT + (1 −
+#: ROOM_AMBIENT) n·l̂)`` ≈ 0.64 of its lit colour (:mod:`jaxmocap.synth.scene`); partial shadows lie between.
+ROOM_SHADOW = fg.ShadowParams(alpha_min=0.5, alpha_max=0.9, cd_max=4.0)
+
+
 def subtraction_iou(
     seq: seqio.Sequence,
     thresholds: float | None = None,
-    shadow: fg.ShadowParams | None = None,
+    shadow: fg.ShadowParams | None | str = "auto",
     open_size: int = 1,
 ) -> np.ndarray:
     """``(T, V)`` IoU of the static-background masks against the plates with the rendered masks (module
@@ -59,15 +65,26 @@ def subtraction_iou(
 
     ``thresholds`` (8-bit units) default to ``max(8, 4 √2 σ)`` with ``σ`` the sequence's sensor noise
     (``meta["noise"]["rgb_sigma"] · 255``): four standard deviations of the difference of two noisy exposures.
-    ``shadow``: Horprasert shadow removal parameters (none by default); ``open_size``: the opening's square.
+    ``shadow``: Horprasert shadow removal parameters, or ``"auto"``: :data:`ROOM_SHADOW` for a sequence rendered in
+    the room (where the body casts shadows), none otherwise; its noise scale is ``√2 σ``. ``open_size``: the
+    opening's square (1: none).
     """
+    sigma = 255.0 * float(seq.meta.get("noise", {}).get("rgb_sigma", 0.01))
     if thresholds is None:
-        sigma = 255.0 * float(seq.meta.get("noise", {}).get("rgb_sigma", 0.01))
         thresholds = max(8.0, 4.0 * np.sqrt(2.0) * sigma)
+    if isinstance(shadow, str):
+        shadow = ROOM_SHADOW if seq.meta.get("background") == "room" else None
     out = np.zeros((seq.num_frames, len(seq.views)))
     for v, view in enumerate(seq.views):
         plate = np.ascontiguousarray(read_plate(seq.root, view.name)[..., ::-1])
-        model = fg.StaticBackground(plate, thresholds, open_size=open_size, dilate_size=1, shadow=shadow)
+        model = fg.StaticBackground(
+            plate,
+            thresholds,
+            open_size=open_size,
+            dilate_size=1,
+            shadow=shadow,
+            noise_std=max(1.0, np.sqrt(2.0) * sigma),
+        )
         for t in range(seq.num_frames):
             pred = model.update(np.ascontiguousarray(view.rgb(t)[..., ::-1])) > 0
             truth = view.mask(t) > 0
