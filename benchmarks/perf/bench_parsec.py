@@ -16,6 +16,8 @@ for the whole tracker.
     .venv/bin/python benchmarks/perf/bench_parsec.py [--particles 4000] [--repeats 9] [--devices 2] [--bodytrack-rounds 5]
 
 ``--devices 2`` splits the particles over two XLA host devices (one per core) with ``shard_map``.
+``--pool-threads 1`` starts XLA's CPU backend with one intra-op thread instead of one per core (XLA sizes the pool
+from the process's affinity mask: the mask is narrowed while the backend starts and restored after).
 """
 
 from __future__ import annotations
@@ -40,6 +42,13 @@ def _args(argv=None):
     ap.add_argument("--numpy-repeats", type=int, default=3)
     ap.add_argument("--devices", type=int, default=1, help="XLA host devices to split the particles over")
     ap.add_argument(
+        "--pool-threads",
+        type=int,
+        default=0,
+        help="start XLA's CPU backend with this many intra-op threads (its pool is sized from the affinity mask, "
+        "narrowed for the backend's start only; 0: one per core, XLA's default)",
+    )
+    ap.add_argument(
         "--bodytrack-rounds",
         type=int,
         default=5,
@@ -61,6 +70,12 @@ import numpy as np  # noqa: E402
 from reference.numpy_baselines import np_loglik  # noqa: E402
 
 from jaxmocap import parsec  # noqa: E402
+
+if ARGS is not None and ARGS.pool_threads > 0:  # XLA sizes its intra-op pool from the affinity mask at start
+    _allowed = os.sched_getaffinity(0)
+    os.sched_setaffinity(0, set(sorted(_allowed)[: ARGS.pool_threads]))
+    jax.devices()
+    os.sched_setaffinity(0, _allowed)
 from jaxmocap.parsec import likelihood as pl  # noqa: E402
 
 
@@ -113,8 +128,13 @@ def main(args):
 
     us = lambda s: s / N * 1e6
     print(f"PARSEC likelihood, {N} particles x 4 views (640x480), frame 0 of sequenceB_2")
+    pool = sum(
+        pathlib.Path(f"/proc/self/task/{t}/comm").read_text().strip() == "tf_XLAEigen"
+        for t in (os.listdir("/proc/self/task") if os.path.isdir("/proc/self/task") else [])
+    )
     print(
-        f"  devices: {jax.devices()[: args.devices]}, cores visible: {os.cpu_count()}, load average: {os.getloadavg()}"
+        f"  devices: {jax.devices()[: args.devices]}, cores visible: {os.cpu_count()}, XLA intra-op threads: {pool}, "
+        f"load average: {os.getloadavg()}"
     )
     print(f"  JAX    compile+first run {compile_s:.1f} s")
     print(
