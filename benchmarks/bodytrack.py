@@ -31,7 +31,7 @@ def build(out: pathlib.Path = BUILD) -> pathlib.Path:
     """Build bodytrack's serial tracker and ``ll_bench`` into ``out`` (make skips what exists); returns ``out``."""
     if not (SRC / "Makefile").is_file():
         raise SystemExit(f"error: no bodytrack sources at {SRC} (set BODYTRACK_SRC)")
-    targets = [str(out / "bodytrack-serial"), str(out / "ll_bench")]
+    targets = [str(out / exe) for exe, _, _ in MODELS.values()] + [str(out / "ll_bench")]
     subprocess.run(["make", "-C", str(SRC), f"OUT={out}", *targets], check=True, stdout=subprocess.DEVNULL)
     return out
 
@@ -62,20 +62,17 @@ def bodytrack_likelihood(particles: int, repeats: int, out: pathlib.Path = BUILD
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
-def bodytrack_frames(particles: int, layers: int, frames: int = 2, out: pathlib.Path = BUILD) -> list[float]:
-    """Seconds per frame of ``bodytrack-serial``: intervals between its "Processing frame" lines (the last frame
-    ends when the process exits)."""
-    argv = [
-        str(out / "bodytrack-serial"),
-        str(SEQ),
-        "4",
-        str(frames),
-        str(particles),
-        str(layers),
-        "4",
-        "1",
-        "0",
-    ]
+#: bodytrack's builds: executable and thread-model arguments (4 = serial; 2 = pthreads, 2 threads)
+MODELS = {"serial": ("bodytrack-serial", "4", "1"), "pthreads": ("bodytrack-pthreads", "2", "2")}
+
+
+def bodytrack_frames(
+    particles: int, layers: int, frames: int = 2, model: str = "serial", out: pathlib.Path = BUILD
+) -> list[float]:
+    """Seconds per frame of bodytrack's ``model`` build (:data:`MODELS`): intervals between its "Processing frame"
+    lines (the last frame ends when the process exits)."""
+    exe, tm, nt = MODELS[model]
+    argv = [str(out / exe), str(SEQ), "4", str(frames), str(particles), str(layers), tm, nt, "0"]
     p = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, cwd=out)
     stamps = []
     for line in p.stdout:
@@ -102,7 +99,8 @@ def label(load: float) -> str:
 
 
 def side_by_side(jobs: dict, rounds: int, log=print) -> list[dict]:
-    """Interleaved A/B: ``jobs`` maps a measurement name to ``(bodytrack_fn, jaxmocap_fn)``, each ``() -> float``.
+    """Interleaved A/B: ``jobs`` maps a measurement name to ``(bodytrack_fn, jaxmocap_fn)``, each ``() -> float``
+    (or both ``() -> {measurement: float}`` with the same keys, several measurements of one call).
     Every round runs both conditions of :data:`CONDITIONS` (the second with :func:`busy`), in each every
     measurement's two functions, alternating which goes first. Returns dicts ``round, condition, load (1-min load
     average at the start of the condition), what, bodytrack, jaxmocap``."""
@@ -113,16 +111,17 @@ def side_by_side(jobs: dict, rounds: int, log=print) -> list[dict]:
                 load = os.getloadavg()[0]
                 order = (0, 1) if (r + ci) % 2 == 0 else (1, 0)
                 for what, fns in jobs.items():
-                    v = [0.0, 0.0]
+                    v = [{}, {}]
                     for i in order:
-                        v[i] = fns[i]()
-                    rows.append(
-                        dict(round=r, condition=cond, load=load, what=what, bodytrack=v[0], jaxmocap=v[1])
-                    )
-                    log(
-                        f"round {r} {cond:16s} load {load:5.2f} {what:26s} bodytrack {v[0]:8.4f} "
-                        f"jaxmocap {v[1]:8.4f} ratio {v[0] / v[1]:5.2f}"
-                    )
+                        got = fns[i]()
+                        v[i] = got if isinstance(got, dict) else {what: got}
+                    for w in v[0]:
+                        b, j = v[0][w], v[1][w]
+                        rows.append(dict(round=r, condition=cond, load=load, what=w, bodytrack=b, jaxmocap=j))
+                        log(
+                            f"round {r} {cond:16s} load {load:5.2f} {w:34s} bodytrack {b:8.4f} "
+                            f"jaxmocap {j:8.4f} ratio {b / j:5.2f}"
+                        )
     return rows
 
 

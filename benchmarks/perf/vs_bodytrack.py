@@ -13,9 +13,10 @@ it times, alternating which of the two goes first from round to round:
 * **likelihood**: µs per particle of one evaluation of ``--particles`` states of frame 0 of sequenceB_2 around its
   initial pose: bodytrack's ``ll_bench`` (``TrackingModel::LogLikelihood`` particle by particle; median of its
   repeats) against :func:`jaxmocap.parsec.likelihood.make_loglik_batch` jitted (median of the same number of calls,
-  compiled before the first round);
-* **tracker**, per frame at 4000 × 5 and 1000 × 3: ``bodytrack-serial`` on the two frames of sequenceB_2 (4
-  cameras, thread model 4 = serial, no BMP output), its per-frame time the median interval between the "Processing
+  compiled before the first round); also the process CPU time per particle of each side (all threads);
+* **tracker**, per frame at 4000 × 5 and 1000 × 3: ``bodytrack-serial`` and ``bodytrack-pthreads`` (2 threads),
+  each in its own A/B pair, on the two frames of sequenceB_2 (4 cameras, thread model 4 = serial or 2 =
+  pthreads, no BMP output), its per-frame time the median interval between the "Processing
   frame i" lines it prints (flushed; the last frame ends when the process exits; each frame includes bodytrack's
   reading of the BMPs, its edge maps and the annealed filter step) against jaxmocap's PARSEC tracker
   (:func:`jaxmocap.parsec.annealing.parsec_apf` + the PARSEC likelihood, as ``benchmarks/experiments/parsec_track.py``
@@ -112,19 +113,23 @@ def run(rounds: int, particles: int, repeats: int, log=print) -> list[dict]:
     t0 = time.perf_counter()
     jm = Jaxmocap(particles)
     log(f"jaxmocap compiled in {time.perf_counter() - t0:.0f} s")
-    jobs = {
-        "likelihood µs/particle": (
-            lambda: bt.bodytrack_likelihood(particles, repeats)["us_median"],
-            lambda: jm.likelihood_us(repeats)[0],
-        ),
-        **{
-            f"tracker {n} × {ly} s/frame": (
-                lambda n=n, ly=ly: float(np.median(bt.bodytrack_frames(n, ly))),
+    lw, lc = "likelihood µs/particle", "likelihood process-CPU µs/particle"
+
+    def ll_bodytrack():
+        r = bt.bodytrack_likelihood(particles, repeats)
+        return {lw: r["us_median"], lc: r["cpu_us_median"]}
+
+    def ll_jaxmocap():
+        wall, cpu = jm.likelihood_us(repeats)
+        return {lw: wall, lc: cpu}
+
+    jobs = {lw: (ll_bodytrack, ll_jaxmocap)}
+    for n, ly in TRACKER_CONFIGS:
+        for model in bt.MODELS:
+            jobs[f"tracker {n} × {ly} s/frame, bodytrack {model}"] = (
+                lambda n=n, ly=ly, m=model: float(np.median(bt.bodytrack_frames(n, ly, model=m))),
                 lambda c=(n, ly): float(np.median(jm.frames(c))),
             )
-            for n, ly in TRACKER_CONFIGS
-        },
-    }
     return bt.side_by_side(jobs, rounds, log)
 
 
