@@ -93,7 +93,11 @@ def _kinematics(quick: bool) -> str:
 
 def _parsec(quick: bool) -> str:
     m = load("parsec")
-    argv = ["--particles", "100", "--repeats", "2", "--numpy-repeats", "1"] if quick else ["--repeats", "21"]
+    argv = (
+        ["--particles", "100", "--repeats", "2", "--numpy-repeats", "1", "--bodytrack-rounds", "0"]
+        if quick
+        else ["--repeats", "21"]
+    )
     return _captured(m.main, m._args(argv))
 
 
@@ -189,6 +193,12 @@ SCRIPTS: dict[str, Script] = {
     "end_to_end": Script("Frames per second end to end", "perf/end_to_end.py", fn=_end_to_end),
     "scaling": Script(
         "Likelihood scaling", "perf/scaling.py", writes=("scaling.md", "scaling.png"), fn=_scaling
+    ),
+    "vs_bodytrack": Script(
+        "jaxmocap vs PARSEC bodytrack built from source: likelihood and tracker, interleaved, idle and loaded",
+        "perf/vs_bodytrack.py",
+        "--rounds 5 --out benchmarks/results/vs_bodytrack.md",
+        writes=("vs_bodytrack.md",),
     ),
     "scale": Script(
         "Scaling beyond one device (sharded particles, batched runs, memory)", "perf/bench_scale.py"
