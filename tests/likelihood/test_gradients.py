@@ -73,13 +73,14 @@ def _to64(tree):
 PAIRS = tuple((n, i) for i, n in enumerate(body.EVAL_JOINTS))
 
 
-def _reverse_mode(value, value_and_grad):
-    """``value`` as a function whose reverse-mode derivative is the gradient ``value_and_grad`` returns.
+def _check_grads(value, value_and_grad, x, tol, eps=None):
+    """``check_grads`` (reverse mode, first order, ``atol = rtol = tol``) of ``value`` at ``x``, with the gradient
+    that ``value_and_grad`` returns as its reverse-mode derivative.
 
-    ``check_grads`` of it compares that gradient against central differences of ``value`` (the plain forward
-    program, no derivative in it) along a random direction, and the value ``value_and_grad`` returns against
-    ``value``'s. Both are compiled once: differentiating a jitted ``value`` instead would compile its linearised
-    and transposed forms as two more programs, and evaluating eagerly compiles every primitive on its own.
+    It compares that gradient against central differences of ``value`` (the plain forward program, no derivative
+    in it) along a random direction, and the value ``value_and_grad`` returns against ``value``'s. Both are compiled
+    once: differentiating a jitted ``value`` instead would compile its linearised and transposed forms as two more
+    programs, and evaluating eagerly compiles every primitive on its own.
     """
 
     @jax.custom_vjp
@@ -90,7 +91,7 @@ def _reverse_mode(value, value_and_grad):
         return (jax.tree_util.tree_map(lambda g: ct * g, grad),)
 
     f.defvjp(value_and_grad, bwd)
-    return f
+    check_grads(f, (x,), order=1, modes=["rev"], atol=tol, rtol=tol, eps=eps)
 
 
 def _cues():
@@ -112,15 +113,7 @@ def test_pose_gradient_against_finite_differences(scene):
         value_and_grad = jax.jit(gradients.value_and_grad_pose)
         f = lambda s: value(lik, s, obs64)  # noqa: E731
         # bilinear lookups are piecewise linear: a small step (1e-6) rarely crosses a pixel cell boundary
-        check_grads(
-            _reverse_mode(f, lambda s: value_and_grad(lik, s, obs64)),
-            (x64,),
-            order=1,
-            modes=["rev"],
-            atol=1e-3,
-            rtol=1e-3,
-            eps=1e-6,
-        )
+        _check_grads(f, lambda s: value_and_grad(lik, s, obs64), x64, 1e-3, eps=1e-6)
         v, g = value_and_grad(lik, x64, obs64)
         assert float(v) == pytest.approx(float(f(x64)), rel=1e-12)
         # central differences of the value for a few entries (root translation and heading, arm, leg, neck)
@@ -181,14 +174,7 @@ def test_camera_gradient_against_opencv_jacobian(scene):
         )
         value_and_grad = jax.jit(lambda p, x, o: gradients.camera_value_and_grad(lik, p, x, o))
         value, g = value_and_grad(params, x64, obs64)
-        check_grads(
-            _reverse_mode(lambda p: total(p, x64, obs64), lambda p: value_and_grad(p, x64, obs64)),
-            (params,),
-            order=1,
-            modes=["rev"],
-            atol=1e-4,
-            rtol=1e-4,
-        )
+        _check_grads(lambda p: total(p, x64, obs64), lambda p: value_and_grad(p, x64, obs64), params, 1e-4)
         J = np.asarray(body.joint_positions(m64, x64), np.float64)
     z = np.asarray(obs.keypoints2d, np.float64)
     total = 0.0
@@ -267,14 +253,8 @@ def test_body_dimension_gradient_closed_form_and_finite_differences(scene):
         )
         value_and_grad = jax.jit(lambda d, x, o: gradients.body_value_and_grad(lik_img, d, x, o))
         x1 = x64 + 0.01
-        check_grads(
-            _reverse_mode(lambda d: value(d, x1, obs64), lambda d: value_and_grad(d, x1, obs64)),
-            (d0,),
-            order=1,
-            modes=["rev"],
-            atol=1e-3,
-            rtol=1e-3,
-            eps=1e-6,
+        _check_grads(
+            lambda d: value(d, x1, obs64), lambda d: value_and_grad(d, x1, obs64), d0, 1e-3, eps=1e-6
         )
         _, g_img = value_and_grad(d0, x1, obs64)
         assert max(abs(float(v)) for v in g_img.values()) > 1e-3
