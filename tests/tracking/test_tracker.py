@@ -72,7 +72,7 @@ def test_filter_factory_builds_every_filter():
         if isinstance(f, Partitioned):
             assert f.groups == partition_groups(model)
             assert (f.schedule is not None) == (name == "hierarchical")
-            assert f.scan_partitions and f.runs() == [(0, len(f.groups))]  # one count: a single scanned stage
+            assert f.scan_partitions and f.runs() == [(0, len(f.groups))]  # a single scanned stage
         # the heading is averaged as an angle
         assert f.circular[model.dof_index("body_rz")] and not f.circular[0]
     assert kinds["sir"] is SIR and kinds["icondensation"] is ICondensation
@@ -80,7 +80,8 @@ def test_filter_factory_builds_every_filter():
     assert kinds["partitioned"] is Partitioned and kinds["hierarchical"] is Partitioned
     counts = (30, 10, 20, 20)
     f = make_filter("partitioned", _toy_loglik, model, np.ones(model.num_dofs), counts, 1, np.zeros(13), 1)
-    assert f.counts == counts and not f.scan_partitions  # unequal counts: partitions unrolled
+    assert f.counts == counts and f.runs() == [(0, 4)]  # unequal counts: scanned too, through a padded buffer
+    assert f.buffer_size == 128  # the largest count rounded up to whole chunks
     with pytest.raises(ValueError, match="unknown filter"):
         make_filter("kalman", _toy_loglik, model, np.ones(13), 10, 1, np.zeros(13), np.ones(13))
 
