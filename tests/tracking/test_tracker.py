@@ -330,3 +330,22 @@ def test_hybrid_filter_of_the_tracker_takes_the_fast_gradient_path(sequence, mon
     state = f.init(jax.random.key(0), jnp.asarray(run.model.rest_pose))
     out = jax.eval_shape(f.step, jax.random.key(1), state, tobs)  # traces every gradient move of the step
     assert out[0].particles.shape == state.particles.shape
+
+
+def test_tracker_gradient_is_that_of_its_batch_likelihood(sequence):
+    """The tracker's per-particle value and gradient (flesh points projected as world points, the coverage term on
+    the image cues' segment poses) are those of its batch likelihood (flesh points run by run, its own forward
+    kinematics) differentiated by ``jax.vjp``: the same function up to float32 rounding."""
+    from jaxmocap.likelihood import gradients
+
+    opts = TrackOptions(filter="hybrid", model="upper9", cues="foreground,edge_distance,coverage:4")
+    run = tracker.Tracker(SequenceSource(sequence), os.devnull, opts, quiet=True)
+    tobs = run._observe(0)[0]
+    ll = run.loglik
+    x0 = np.asarray(run.model.rest_pose, np.float32)
+    X = jnp.asarray(x0 + 0.03 * np.random.default_rng(0).normal(size=(4, x0.size)), jnp.float32)
+    v, g = jax.jit(lambda X: ll.batch_value_and_grad(X, tobs, 1))(X)
+    v_ref, g_ref = jax.jit(lambda X: gradients.vjp_value_and_grad(ll, X, tobs, 1))(X)
+    assert np.all(np.isfinite(v_ref)) and np.any(np.asarray(g_ref) != 0)
+    np.testing.assert_allclose(v, v_ref, rtol=1e-5)
+    np.testing.assert_allclose(g, g_ref, rtol=1e-3, atol=1e-3 * float(np.max(np.abs(g_ref))))
