@@ -334,6 +334,17 @@ class TrackSetup:
             survival_target=self.o.survival_target,
         )
 
+    def compile_arguments(self, key, obs):
+        """``(filter, state)`` with the structure and shapes of the first step's, before the initial pose is known
+        (:mod:`jaxmocap.tracking.loop`, compiling ahead): the filter around the rest pose (the pose is data of the
+        filter) and the state as shapes (``jax.ShapeDtypeStruct``); None when the colour cues' references, taken
+        at the initial pose, are still to be set (they are part of the likelihood's structure)."""
+        if self.needs_references:
+            return None
+        x0 = np.asarray(self.model.rest_pose, np.float64)
+        filt = self.make_filter(x0)
+        return filt, jax.eval_shape(lambda k: self.start(filt, k, x0, 1.0, obs), key)
+
     def start(self, filt, key, x0: np.ndarray, spread: float, obs):
         """The initial set: ``filter.init(key, x0, spread · Δ)``."""
         dt = self.model.offset.dtype

@@ -207,6 +207,8 @@ def test_end_to_end_error_is_bounded(sequence, tracked):
 @pytest.mark.slow
 def test_compiled_once_and_outputs(sequence, tracked):
     run, out, summary = tracked
+    # compiled ahead, while the first frame was initialised, with the structure of the step it then ran
+    assert run.compiled_ahead
     assert run.trace_count == 1 and summary["compilations"] == 1
     assert run._step._cache_size() == 1
     poses = export.load_poses(out)
@@ -286,6 +288,7 @@ def test_colour_cues_track_with_first_frame_references_and_resume(sequence, tmp_
     opts = dict(model="upper14", filter="apf", cues=cues, particles=30, layers=2, frames="0:4", seed=3)
     full = tracker.Tracker(SequenceSource(sequence), tmp_path / "full", TrackOptions(**opts), quiet=True)
     full.run()
+    assert not full.compiled_ahead and full.trace_count == 1  # the references are structure: compiled after them
     lik = full.likelihood
     names = [c.name for c in lik.cues]
     assert all(lik.references[names.index(n)] is not None for n in ("colour_histogram", "colour_template"))
