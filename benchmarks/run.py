@@ -215,6 +215,20 @@ SCRIPTS: dict[str, Script] = {
         writes=("compile_time.md",),
         slow=True,
     ),
+    "compile_steps": Script(
+        "Run time of the filter step per model and filter family",
+        "perf/compile_time.py",
+        "--steps --out benchmarks/results/compile_steps.md",
+        writes=("compile_steps.md",),
+        slow=True,
+    ),
+    "compile_tracks": Script(
+        "Whole tracks per model and filter family (the results guard of the compile-time changes)",
+        "perf/compile_time.py",
+        "--tracks --seeds 0 1 2 --out benchmarks/results/compile_tracks.md",
+        writes=("compile_tracks.md",),
+        slow=True,
+    ),
     "compile_programs": Script(
         "Compile time of the tracker's programs per model",
         "perf/compile_time.py",

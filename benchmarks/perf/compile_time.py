@@ -21,8 +21,24 @@ Two tables, both with the persistent compilation cache off (``JAXMOCAP_CACHE_DIR
    project, e.g. a ``git worktree`` of an older commit) each configuration is run with that checkout and with this
    one in alternation, so that both see the same machine load; the table gives both times and their ratio.
 
+3. **Step time** (``--steps``): the compiled filter step's run time per model × family, as the tracker runs it
+   (initialised by the tracker's own pose fit on the first frame), the median over the 16 frames of the sequence
+   per round. With ``--before DIR`` one worker process per checkout compiles the step once, and each round times
+   the sequence in each worker in turn; the ratio is the median of the per-round ratios (the run-time guard of
+   the compile-time changes: a shorter compilation may not cost step time).
+
+4. **Tracks** (``--tracks``): the whole sequence tracked by ``jaxmocap track`` for the seeds of ``--seeds`` (the
+   persistent cache on, one per checkout), the mean joint error against the ground truth; with ``--before DIR``
+   with each checkout, whether the poses are the same bit for bit and the largest difference (the guard of the
+   results: a change that only reorganises the compiled program must leave the tracks as they were, one that
+   changes rounding must leave the accuracy).
+
+With ``--out FILE`` the table is written with the command that regenerates it less ``--before DIR`` (the note
+under the table names that checkout and its commit).
+
     python benchmarks/perf/compile_time.py [--models upper9 upper14 full25] [--filters apf iapf ...]
-                                           [--before DIR] [--programs [--isolate]] [--quick]
+                                           [--before DIR] [--programs [--isolate]] [--steps [--rounds 7]]
+                                           [--tracks --seeds 0 1 2] [--quick]
 """
 
 from __future__ import annotations
@@ -35,6 +51,8 @@ import subprocess
 import sys
 import tempfile
 import time
+
+import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 
@@ -52,6 +70,8 @@ FAMILIES = {
     "hybrid": ("hybrid", None),
 }
 ROOT = pathlib.Path(__file__).resolve().parents[2]
+#: the cues of the gradient filters (the default set less ``depth``, which has no gradient)
+HYBRID_CUES = "foreground,edge_distance,coverage:4"
 
 
 def make_sequence(folder: pathlib.Path) -> pathlib.Path:
@@ -153,17 +173,23 @@ def _env(checkout: pathlib.Path) -> dict:
     return env
 
 
+def track_command(seq: pathlib.Path, model: str, family: str, out: pathlib.Path, *extra: str) -> list[str]:
+    """``jaxmocap track`` of one model × family (the unequal counts, the gradient filters' cues) into ``out``."""
+    name, rule = FAMILIES[family]
+    cmd = [sys.executable, "-m", "jaxmocap.cli", "track", str(seq), "--out", str(out), "--model", model]
+    cmd += ["--filter", name, "--quiet", "--overwrite", *extra]
+    if rule == "unequal":
+        cmd += ["--particles", unequal_counts(model)]
+    if name == "hybrid":  # the gradient filters need differentiable cues: the default set without depth
+        cmd += ["--cues", HYBRID_CUES]
+    return cmd
+
+
 def first_frame_seconds(
     checkout: pathlib.Path, seq: pathlib.Path, model: str, family: str, out: pathlib.Path
 ):
     """Wall time of a one-frame ``jaxmocap track`` in a new process with ``checkout``'s package."""
-    name, rule = FAMILIES[family]
-    cmd = [sys.executable, "-m", "jaxmocap.cli", "track", str(seq), "--out", str(out), "--model", model]
-    cmd += ["--filter", name, "--frames", "0:1", "--quiet", "--overwrite"]
-    if rule == "unequal":
-        cmd += ["--particles", unequal_counts(model)]
-    if name == "hybrid":  # the gradient filters need differentiable cues: the default set without depth
-        cmd += ["--cues", "foreground,edge_distance,coverage:4"]
+    cmd = track_command(seq, model, family, out, "--frames", "0:1")
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True, env=_env(checkout), cwd=str(out.parent))
     seconds = time.perf_counter() - t0
@@ -196,6 +222,151 @@ def first_frame_table(models, families, seq, before: pathlib.Path | None, work: 
     return lines
 
 
+# ---------------------------------------------------------------------------------------------------------------
+# Step time
+
+
+def step_worker(model: str, family: str, seq: pathlib.Path) -> None:
+    """A worker (``--worker``): builds the configuration as ``jaxmocap track`` does, compiles the step, prints
+    ``ready``; then for each ``go`` on stdin runs the step over every frame from the same initial state and prints
+    the milliseconds of each call (JSON)."""
+    import jax
+    import numpy as np
+
+    from jaxmocap.io.sources import SequenceSource
+    from jaxmocap.tracking.options import TrackOptions
+    from jaxmocap.tracking.setup import TrackSetup
+
+    name, rule = FAMILIES[family]
+    particles = [int(c) for c in unequal_counts(model).split(",")] if rule == "unequal" else None
+    cues = HYBRID_CUES if name == "hybrid" else None
+    options = TrackOptions(model=model, filter=name, particles=particles, cues=cues)
+    setup = TrackSetup(SequenceSource(seq), options)
+    frames = [setup.observe(t)[:3] for t in setup.frames]
+    tobs0, masks0, fd0 = frames[0]
+    x0, spread, _ = setup.initial_state(setup.frames[0], masks0, fd0)
+    x0 = np.asarray(x0, np.float64)
+    setup.set_references(x0, tobs0)
+    filt = setup.make_filter(x0)
+    observations = []
+    for tobs, masks, fd in frames:
+        centre = setup.detection(fd, masks, x0)
+        if centre is not None:
+            tobs = tobs._replace(centre=jax.numpy.asarray(centre, np.float32), valid=jax.numpy.asarray(True))
+        observations.append(tobs)
+    state0 = setup.start(filt, jax.random.key(1), x0, spread, tobs0)
+    step = jax.jit(lambda f, k, s, o: f.step(k, s, o))
+    jax.block_until_ready(step(filt, jax.random.key(0), state0, observations[0]))
+    print("ready", flush=True)
+    for line in sys.stdin:
+        if line.strip() != "go":
+            break
+        state, ms = state0, []
+        for i, tobs in enumerate(observations):
+            t0 = time.perf_counter()
+            state, info = step(filt, jax.random.key(i), state, tobs)
+            jax.block_until_ready((state, info))
+            ms.append(1e3 * (time.perf_counter() - t0))
+        print(json.dumps(ms), flush=True)
+
+
+def step_table(models, families, seq, before: pathlib.Path | None, rounds: int) -> list[str]:
+    trees = {"after": ROOT} if before is None else {"before": before, "after": ROOT}
+    if before is None:
+        lines = ["| model | filter | step ms |", "|---|---|---|"]
+    else:
+        lines = [
+            "| model | filter | before ms | after ms | after / before (median of rounds) | range of rounds |",
+            "|---|---|---|---|---|---|",
+        ]
+    for m in models:
+        for fam in families:
+            cmd = [sys.executable, __file__, "--worker", m, fam, str(seq)]
+            workers = {
+                k: subprocess.Popen(
+                    cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=_env(tree)
+                )
+                for k, tree in trees.items()
+            }
+            for w in workers.values():  # both compile at once
+                while w.stdout.readline().strip() != "ready":
+                    if w.poll() is not None:
+                        raise RuntimeError(f"step worker failed: {m} {fam}")
+            med: dict = {k: [] for k in workers}
+            for _ in range(rounds):
+                for k, w in workers.items():
+                    w.stdin.write("go\n")
+                    w.stdin.flush()
+                    med[k].append(float(np.median(json.loads(w.stdout.readline()))))
+            for w in workers.values():
+                w.stdin.close()
+                w.wait()
+            a = np.asarray(med["after"])
+            if before is None:
+                lines.append(f"| {m} | {fam} | {np.median(a):.1f} |")
+            else:
+                b = np.asarray(med["before"])
+                r = a / b
+                lines.append(
+                    f"| {m} | {fam} | {np.median(b):.1f} | {np.median(a):.1f} | {np.median(r):.2f} "
+                    f"| {r.min():.2f}–{r.max():.2f} |"
+                )
+            print(lines[-1], flush=True)
+    return lines
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Tracks
+
+
+def tracks_table(models, families, seq, before: pathlib.Path | None, seeds, work: pathlib.Path) -> list[str]:
+    trees = {"after": ROOT} if before is None else {"before": before, "after": ROOT}
+    if before is None:
+        lines = ["| model | filter | seeds | mean joint error mm |", "|---|---|---|---|"]
+    else:
+        lines = [
+            "| model | filter | seeds | identical poses | largest difference | before mm | after mm |",
+            "|---|---|---|---|---|---|---|",
+        ]
+    for m in models:
+        for fam in families:
+            poses: dict = {k: [] for k in trees}
+            err: dict = {k: [] for k in trees}
+            for seed in seeds:
+                for k, tree in trees.items():
+                    out = work / f"track_{k}"
+                    env = dict(_env(tree), JAXMOCAP_CACHE_DIR=str(work / f"cache_{k}"))
+                    cmd = track_command(seq, m, fam, out, "--seed", str(seed))
+                    proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
+                    if proc.returncode != 0:
+                        raise RuntimeError(f"{k} {m} {fam}: {(proc.stderr or proc.stdout).strip()[-300:]}")
+                    poses[k].append(np.load(out / "poses.npz")["state"])
+                    err[k].append(
+                        json.loads((out / "diagnostics.json").read_text())["summary"]["mean_error_mm"]
+                    )
+            if before is None:
+                lines.append(f"| {m} | {fam} | {len(seeds)} | {np.mean(err['after']):.1f} |")
+            else:
+                pairs = list(zip(poses["before"], poses["after"], strict=True))
+                same = sum(bool(np.array_equal(p, q)) for p, q in pairs)
+                diff = max(float(np.max(np.abs(p - q))) for p, q in pairs)
+                b, a = (f"{np.mean(err[k]):.1f}" for k in ("before", "after"))
+                lines.append(
+                    f"| {m} | {fam} | {len(seeds)} | {same} of {len(seeds)} | {diff:.2g} | {b} | {a} |"
+                )
+            print(lines[-1], flush=True)
+    return lines
+
+
+def _before_note(before: pathlib.Path) -> str:
+    """Where the before column comes from: the checkout and its commit."""
+    proc = subprocess.run(
+        ["git", "-C", str(before), "rev-parse", "--short", "HEAD"], capture_output=True, text=True
+    )
+    commit = proc.stdout.strip() or "unknown"
+    return f"Before: the checkout `{before}` at commit {commit} (`--before {before}`), run in alternation with this one."
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--models", nargs="*", default=list(MODELS), choices=MODELS)
@@ -203,14 +374,22 @@ def main(argv=None):
     ap.add_argument("--before", type=pathlib.Path, help="another checkout to run side by side (first frame)")
     ap.add_argument("--programs", action="store_true", help="the programs table instead of the first frame")
     ap.add_argument("--isolate", action="store_true", help="programs: each row in a fresh interpreter")
+    ap.add_argument("--steps", action="store_true", help="the step-time table instead of the first frame")
+    ap.add_argument("--rounds", type=int, default=7, help="steps: rounds per configuration")
+    ap.add_argument("--tracks", action="store_true", help="whole tracks of the sequence (of both checkouts)")
+    ap.add_argument("--seeds", nargs="*", type=int, default=[0], help="tracks: the seeds")
     ap.add_argument("--quick", action="store_true", help="upper9 with the APF only (a smoke test)")
     ap.add_argument("--out", type=pathlib.Path, help="write the table (markdown) here as well")
     ap.add_argument("--row", nargs=3, help=argparse.SUPPRESS)
+    ap.add_argument("--worker", nargs=3, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     os.environ["JAXMOCAP_CACHE_DIR"] = "off"
     os.environ.pop("JAX_COMPILATION_CACHE_DIR", None)
     if a.row:
         print(json.dumps(measure(a.row[0], a.row[1], pathlib.Path(a.row[2]))))
+        return
+    if a.worker:
+        step_worker(a.worker[0], a.worker[1], pathlib.Path(a.worker[2]))
         return
     if a.quick:
         a.models, a.filters = ["upper9"], ["apf"]
@@ -221,14 +400,25 @@ def main(argv=None):
         if a.programs:
             title = "Compile time of the tracker's programs (cache off)"
             lines = programs_table(a.models, seq, a.isolate)
+        elif a.tracks:
+            title = "Whole tracks of the sequence (16 frames; mean joint error against the ground truth)"
+            lines = tracks_table(a.models, a.filters, seq, a.before, a.seeds, work)
+        elif a.steps:
+            title = "Run time of the compiled filter step (median over the frames of a round)"
+            lines = step_table(a.models, a.filters, seq, a.before, a.rounds)
         else:
             title = "First-frame latency of `jaxmocap track` (process start to one tracked frame, cache off)"
             lines = first_frame_table(a.models, a.filters, seq, a.before, work)
-        note = f"load average {load0:.2f} before, {os.getloadavg()[0]:.2f} after; {common.stamp()}"
+        note = f"load average {load0:.2f} at the start, {os.getloadavg()[0]:.2f} at the end; {common.stamp()}"
+        if a.before is not None:
+            note += "\n\n" + _before_note(a.before)
         text = "\n".join([f"### {title}", "", *lines, "", note, ""])
         print(note)
-        if a.out:
+        if a.out:  # the command without the other checkout (named in the note), as the register gives it
             args = sys.argv[1:] if argv is None else list(argv)
+            if "--before" in args:
+                i = args.index("--before")
+                args = args[:i] + args[i + 2 :]
             common.write_result(a.out, text, " ".join(["python", common.script(__file__), *map(str, args)]))
 
 

@@ -40,6 +40,7 @@ __all__ = [
     "State",
     "apply_limits",
     "beta_hint",
+    "chunked_loglik",
     "filter_init",
     "diffuse",
     "finish",
@@ -192,6 +193,22 @@ def register_filter(cls, data_fields: tuple[str, ...]):
 def mask_loglik(loglik: jnp.ndarray) -> jnp.ndarray:
     """Map NaN and ``±inf`` log-likelihoods to ``-inf`` (dead particles)."""
     return jnp.where(jnp.isfinite(loglik), loglik, -jnp.inf)
+
+
+def chunked_loglik(loglik_batch: Callable, X: jnp.ndarray, observation, layer, n, chunk: int) -> jnp.ndarray:
+    """``(B,)`` log-likelihoods of the first ``n`` rows of a buffer ``X (B, D)`` (``B`` a multiple of ``chunk``;
+    ``n`` may be traced): ``loglik_batch`` on chunks of ``chunk`` rows, ``⌈n / chunk⌉`` of them (a loop whose trip
+    count is data, so one compiled program serves every ``n``); the rows of the chunks not run are ``-inf``."""
+    B = X.shape[0]
+    if B % chunk:
+        raise ValueError(f"the buffer's {B} rows are not a multiple of the chunk ({chunk})")
+
+    def body(i, ll):
+        rows = jax.lax.dynamic_slice_in_dim(X, i * chunk, chunk)
+        out = loglik_batch(rows, observation, layer).astype(ll.dtype)
+        return jax.lax.dynamic_update_slice_in_dim(ll, out, i * chunk, 0)
+
+    return jax.lax.fori_loop(0, (n + chunk - 1) // chunk, body, jnp.full((B,), -jnp.inf, X.dtype))
 
 
 def normalise(log_w: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:

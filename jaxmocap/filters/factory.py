@@ -149,17 +149,16 @@ def make_filter(
             **prior,
             **common,
         )
-    # one count for every partition: the partitions run as one lax.scan (compiled once: full25 2.6–5.3× faster to
-    # compile, 9–15 % slower per step); with unequal counts the scan saved little compile time for 6–7 % per step
-    # (benchmarks/compile_partitions.py)
-    scan = isinstance(counts, tuple) and len(set(counts)) == 1
+    # the partitions run as one lax.scan (the likelihood compiled once; unequal counts through a padded buffer,
+    # jaxmocap.filters.partitioned): full25 with Li & Kulić's counts compiles in a third of the CPU time of the
+    # unrolled step, at no loss of step time (benchmarks/results/compile_time.md)
     if name == "partitioned":
         groups = partition_groups(model)
-        return Partitioned(loglik, std, groups, counts, scan_partitions=scan, **common)
+        return Partitioned(loglik, std, groups, counts, scan_partitions=True, **common)
     if name == "hierarchical":
         groups = partition_groups(model)
         sched = Schedule.deutscher(L, survival_target, diffusion_scales=scales)
-        return hierarchical(loglik, std, groups, counts, sched, scan_partitions=scan, **common)
+        return hierarchical(loglik, std, groups, counts, sched, scan_partitions=True, **common)
     if name == "m-apf":
         sched = Schedule(
             kind="corrected", num_layers=L, diffusion_scales=scales, survival_target=survival_target

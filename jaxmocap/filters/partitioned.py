@@ -19,15 +19,20 @@ Hierarchical sampling: with a ``schedule`` (:class:`jaxmocap.filters.annealing.S
 annealing layers on its group (as in :class:`jaxmocap.filters.apf.APF`, diffusion ``Δ[G_k] · s_l``), and the
 likelihood receives ``Layer(index=l, beta, partition=k)``: ``loglik_batch(X, observation, layer)``.
 
-Compilation: each partition is its own stage of the step, so a step with ``K`` partitions inlines the likelihood
-``K`` times (hierarchical: ``2K``, since the first layer of a level runs outside its scan over layers). With
-``scan_partitions=True`` — for a likelihood that does not need the partition as a Python int (it receives it
-traced) — consecutive partitions whose input sets have their own size (equal counts) run as one ``lax.scan`` over
-the partition index, DOF mask and key, their layers all inside the scan over layers (:meth:`Partitioned.runs`):
-``full25`` with one count for all six partitions inlines the likelihood once. Keys, masks and the order of
-operations are those of the unrolled step. The trade, measured on ``full25`` (``benchmarks/compile_partitions.py``):
-with one stage left, compilation 2.6–5.3× faster and each step 9–15 % slower (XLA overlaps less work inside a
-loop); with unequal counts (four stages) compilation only 2–16 % faster.
+Compilation: without ``scan_partitions`` each partition is its own stage of the step, so a step with ``K``
+partitions inlines the likelihood ``K`` times (hierarchical: ``2K``, since the first layer of a level runs outside
+its scan over layers). With ``scan_partitions=True`` — for a likelihood that does not need the partition as a
+Python int (it receives it traced) — all partitions run as one ``lax.scan`` over the partition index, DOF mask and
+key, their layers inside a scan over layers, and the likelihood is inlined once (:meth:`Partitioned._scanned`).
+With unequal counts the set lives in a buffer of :attr:`Partitioned.buffer_size` rows (the largest count rounded
+up to whole chunks of ``chunk`` rows): resampling, diffusion and weighing run on the first ``N_k`` rows (a
+``lax.switch`` over the distinct counts, each branch the unrolled step's operations on arrays of the true size, so
+the random draws are the same) and the likelihood on the ``⌈N_k / chunk⌉`` chunks that hold them (a loop whose trip
+count is data: the same evaluations as a batch of ``N_k``). Keys, masks and the order of operations are those of
+the unrolled step: equal counts give it bit for bit; unequal counts give the same particles, and log-likelihoods
+that can differ in the last bit where the likelihood's arithmetic depends on the batch width (``chunk`` rows
+instead of ``N_k``; the tracker's ``coverage`` term does). Measured on ``full25`` with Li & Kulić's counts
+(``benchmarks/results/compile_time.md``): compilation in a third of the CPU time, the step no slower.
 
 Recovery: a partition (or layer) without any finite log-likelihood re-draws its group's DOFs around the previous
 frame's estimate with std ``recovery_widen · Δ`` (or keeps them, ``recovery="uniform"``) with uniform weights, and
@@ -37,6 +42,7 @@ sets ``Info.recovered``; with ``"reinit"`` the frame's estimate of those DOFs is
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 
 import jax
@@ -58,14 +64,16 @@ class Partitioned(base.FilterBase):
     sampling); ``loglik_batch`` when it is a pytree.
     Static: a plain ``loglik_batch``, ``groups`` (tuple of tuples of DOF indices), ``counts`` (particles per group),
     the schedule's structure, ``resampling``, ``limit_mode``, ``circular``, ``recovery``,
-    ``recovery_widen``, ``scan_partitions`` (run equal-count partitions in one ``lax.scan``; the likelihood then
-    receives the partition index traced — see the module docstring).
+    ``recovery_widen``, ``scan_partitions`` (run all partitions in one ``lax.scan``; the likelihood then
+    receives the partition index traced — see the module docstring), ``chunk`` (rows per likelihood call of a
+    scanned step with unequal counts; the tracker's likelihood works in chunks of 128 itself).
     """
 
     groups: tuple[tuple[int, ...], ...]
     counts: tuple[int, ...]
     schedule: Schedule | None = None
     scan_partitions: bool = False
+    chunk: int = 128
 
     def __post_init__(self):
         groups = tuple(tuple(int(i) for i in g) for g in self.groups)
@@ -77,6 +85,8 @@ class Partitioned(base.FilterBase):
             raise ValueError("partitions must be non-empty, disjoint groups of non-negative DOF indices")
         if any(c < 1 for c in counts):
             raise ValueError("particle counts must be ≥ 1")
+        if self.chunk < 1:
+            raise ValueError("chunk must be ≥ 1")
         object.__setattr__(self, "groups", groups)
         object.__setattr__(self, "counts", counts)
 
@@ -98,104 +108,205 @@ class Partitioned(base.FilterBase):
         return m
 
     def runs(self) -> list[tuple[int, int]]:
-        """``[(start, stop), …]``: the stages of a step, each running partitions ``start … stop − 1``. Without
-        ``scan_partitions`` every partition is its own stage. With it, a partition whose input set has its own size
-        (``counts[k − 1] == counts[k]``; the first partition's input is the previous frame's set of ``counts[-1]``)
-        joins the stage before it when that stage is of such partitions too: maximal runs of equal counts, each
-        scanned, minus a first partition that resamples from a set of another size."""
-        out: list[list] = []
-        for k in range(len(self.groups)):
-            same_size = self.scan_partitions and self.counts[k - 1] == self.counts[k]
-            if same_size and out and out[-1][2]:
-                out[-1][1] = k + 1
-            else:
-                out.append([k, k + 1, same_size])
-        return [(a, b) for a, b, _ in out]
+        """``[(start, stop), …]``: the stages of a step, each running partitions ``start … stop − 1`` and inlining
+        the likelihood once: every partition alone, or with ``scan_partitions`` all of them in one stage."""
+        K = len(self.groups)
+        return [(0, K)] if self.scan_partitions else [(k, k + 1) for k in range(K)]
 
-    def _weigh(self, key, X, ll, beta, status, mask, previous_estimate):
+    @property
+    def buffer_size(self) -> int:
+        """Rows of the particle buffer of a scanned step: the count when all are equal, else the largest count
+        rounded up to a multiple of ``chunk``."""
+        if len(set(self.counts)) == 1:
+            return self.counts[0]
+        return -(-max(self.counts) // self.chunk) * self.chunk
+
+    # -- one layer: propose (resample, diffuse), evaluate, accept (β, weights, recovery) ----------------------
+
+    def _propose(self, k_sel, k_move, X, log_w, n, std):
+        X = base.resample(self.resampling, k_sel, X, log_w, n)[0]
+        return base.diffuse(k_move, X, std, self.lower, self.upper, self.limit_mode)
+
+    def _accept(self, k_rec, X, ll, layer, beta_prev, surv_prev, mask, previous_estimate):
+        """β (1 without a schedule), normalised weights and the recovery: ``(X, log_w, stats, recovered)``."""
+        if self.schedule is None:
+            beta, status = jnp.ones((), X.dtype), annealing.STATUS_OK
+        else:
+            sol = annealing.choose_beta(self.schedule, ll, layer, beta_prev, surv_prev)
+            beta, status = sol.beta, sol.status
         log_w, ok = base.normalise(beta * jnp.where(jnp.isfinite(ll), ll, -jnp.inf))
         stats = base.layer_stats(ll, log_w, beta, status)
-        X_rec = self._recover(key, X, previous_estimate)
-        X_rec = jnp.where(mask, X_rec, X)
+        X_rec = jnp.where(mask, self._recover(k_rec, X, previous_estimate), X)
         return jnp.where(ok, X, X_rec), log_w, stats, ~ok
 
-    def _partition(self, key, X, log_w, k, mask, n, observation, previous_estimate):
-        """Run partition ``k`` (a Python int, or traced with ``scan_partitions``) of ``n`` particles on the DOFs
-        ``mask (D,)``; returns ``(X, log_w, stats with a leading (L,) axis, recovered)``."""
-        dtype = X.dtype
-        std_k = jnp.where(mask, self.diffusion_std, 0.0)
+    def _layer(self, carry, inputs, k, mask, propose, evaluate, accept):
+        """One layer of partition ``k``: ``propose(k_sel, k_move, X, log_w, std, layer)``, ``evaluate(X, layer)``
+        (log-likelihoods), ``accept(k_rec, X, ll, layer, beta_prev, surv_prev)``. ``carry``: ``(X, log_w, β,
+        survival rate, recovered)`` of the previous layer; ``inputs``: ``(key, layer index)``."""
+        X, log_w, beta_prev, surv_prev, recovered = carry
+        kk, layer = inputs
+        k_sel, k_move, k_rec = jax.random.split(kk, 3)
+        std = jnp.where(mask, self.diffusion_std, 0.0)
         if self.schedule is None:
-            k_sel, k_move, k_rec = jax.random.split(key, 3)
-            X = base.resample(self.resampling, k_sel, X, log_w, n)[0]
-            X = base.diffuse(k_move, X, std_k, self.lower, self.upper, self.limit_mode)
-            ll = base.mask_loglik(self.loglik_batch(X, observation, base.single_layer(dtype, k)))
-            X, log_w, stats, rec = self._weigh(
-                k_rec, X, ll, jnp.ones((), dtype), annealing.STATUS_OK, mask, previous_estimate
-            )
-            return X, log_w, jax.tree_util.tree_map(lambda a: a[None], stats), rec
+            lay = base.single_layer(X.dtype, k)
+        else:
+            std = std * jnp.asarray(self.schedule.scales, X.dtype)[layer]
+            lay = Layer(layer, base.beta_hint(self.schedule, layer, beta_prev), k)
+        X = propose(k_sel, k_move, X, log_w, std, layer)
+        ll = base.mask_loglik(evaluate(X, lay))
+        X, log_w, stats, rec = accept(k_rec, X, ll, layer, beta_prev, surv_prev)
+        return (X, log_w, stats.beta, stats.survival_rate, recovered | rec), stats
 
-        schedule = self.schedule
-        scales = jnp.asarray(schedule.scales, dtype)
-
-        def layer_fn(carry, inputs):
-            X, log_w, beta_prev, surv_prev, recovered = carry
-            kk, layer = inputs
-            k_sel, k_move, k_rec = jax.random.split(kk, 3)
-            X = base.resample(self.resampling, k_sel, X, log_w, n)[0]
-            X = base.diffuse(k_move, X, std_k * scales[layer], self.lower, self.upper, self.limit_mode)
-            hint = base.beta_hint(schedule, layer, beta_prev)
-            ll = base.mask_loglik(self.loglik_batch(X, observation, Layer(layer, hint, k)))
-            sol = annealing.choose_beta(schedule, ll, layer, beta_prev, surv_prev)
-            X, log_w, stats, rec = self._weigh(k_rec, X, ll, sol.beta, sol.status, mask, previous_estimate)
-            return (X, log_w, stats.beta, stats.survival_rate, recovered | rec), stats
-
-        L = schedule.num_layers
-        keys = jax.random.split(key, L)
-        layers = jnp.arange(L, dtype=jnp.int32)
+    def _partition(self, key, X, log_w, k, mask, layer_fn, first_apart):
+        """The layers of partition ``k`` from the set ``(X, log_w)``: ``layer_fn(carry, (key, layer))``; the first
+        layer outside the scan over layers when ``first_apart`` (it changes the set's size). Returns ``(X, log_w,
+        stats with a leading (L,) axis, recovered)``."""
+        dtype = X.dtype
         carry = (X, log_w, jnp.zeros((), dtype), jnp.ones((), dtype), jnp.zeros((), bool))
-        if self.scan_partitions and X.shape[0] == n:
-            carry, stats = jax.lax.scan(layer_fn, carry, (keys, layers))
-        else:  # the first layer (resampling from a set of another size in general) runs outside the scan
-            carry, first = layer_fn(carry, (keys[0], layers[0]))
-            carry, rest = jax.lax.scan(layer_fn, carry, (keys[1:], layers[1:]))
-            stats = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), first, rest)
+        if self.schedule is None:
+            carry, stats = layer_fn(carry, (key, jnp.zeros((), jnp.int32)))
+            stats = jax.tree_util.tree_map(lambda a: a[None], stats)
+        else:
+            L = self.schedule.num_layers
+            keys = jax.random.split(key, L)
+            layers = jnp.arange(L, dtype=jnp.int32)
+            if first_apart:
+                carry, first = layer_fn(carry, (keys[0], layers[0]))
+                carry, rest = jax.lax.scan(layer_fn, carry, (keys[1:], layers[1:]))
+                stats = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), first, rest)
+            else:
+                carry, stats = jax.lax.scan(layer_fn, carry, (keys, layers))
         X, log_w, _, _, rec = carry
         return X, log_w, stats, rec
+
+    # -- the frame ---------------------------------------------------------------------------------------------
 
     def step(self, key: jax.Array, state: State, observation) -> tuple[State, Info]:
         """One frame over all partitions. ``Info.layers`` has shape ``(K, L)``."""
         keys = jax.random.split(key, len(self.groups))
-        X, log_w = state.particles, state.log_weights
-        masks = self._masks(X.shape[1])
-        recovered = jnp.zeros((), bool)
-        stale = jnp.zeros(X.shape[1], bool)  # DOFs re-initialised by a recovery in this frame
-        all_stats = []
-        for start, stop in self.runs():
-            n = self.counts[start]
-
-            def stage(carry, inputs, n=n):
-                X, log_w, recovered, stale = carry
-                kk, k, mask = inputs
-                X, log_w, stats, rec = self._partition(kk, X, log_w, k, mask, n, observation, state.estimate)
-                return (X, log_w, recovered | rec, stale | (rec & mask)), stats
-
-            carry = (X, log_w, recovered, stale)
-            if stop - start == 1:
-                carry, stats = stage(carry, (keys[start], start, jnp.asarray(masks[start])))
-                stats = jax.tree_util.tree_map(lambda a: a[None], stats)
-            else:
-                ks = jnp.arange(start, stop, dtype=jnp.int32)
-                carry, stats = jax.lax.scan(
-                    stage, carry, (keys[start:stop], ks, jnp.asarray(masks[start:stop]))
-                )
-            X, log_w, recovered, stale = carry
-            all_stats.append(stats)
-        stats = jax.tree_util.tree_map(lambda *a: jnp.concatenate(a), *all_stats)
+        if self.scan_partitions:
+            X, log_w, recovered, stale, stats = self._scanned(keys, state, observation)
+        else:
+            X, log_w, recovered, stale, stats = self._unrolled(keys, state, observation)
         estimate = base.weighted_mean(X, log_w, self.circular)
         if self.recovery == "reinit":
             estimate = jnp.where(stale, state.estimate, estimate)
         best = X[jnp.argmax(log_w)]
         return State(X, log_w, estimate), Info(estimate, best, stats, recovered)
+
+    def _unrolled(self, keys, state, observation):
+        """Every partition its own stage (``k`` a Python int); ``(X, log_w, recovered, stale DOFs, stats)``."""
+        X, log_w = state.particles, state.log_weights
+        masks = self._masks(X.shape[1])
+        recovered = jnp.zeros((), bool)
+        stale = jnp.zeros(X.shape[1], bool)  # DOFs re-initialised by a recovery in this frame
+        all_stats = []
+        for k, n in enumerate(self.counts):
+            mask = jnp.asarray(masks[k])
+            propose = lambda ks, km, X, lw, std, layer, n=n: self._propose(ks, km, X, lw, n, std)
+            evaluate = lambda X, lay: self.loglik_batch(X, observation, lay)
+            accept = lambda kr, X, ll, layer, b, s, mask=mask: self._accept(
+                kr, X, ll, layer, b, s, mask, state.estimate
+            )
+            layer_fn = functools.partial(
+                self._layer, k=k, mask=mask, propose=propose, evaluate=evaluate, accept=accept
+            )
+            X, log_w, stats, rec = self._partition(keys[k], X, log_w, k, mask, layer_fn, True)
+            recovered, stale = recovered | rec, stale | (rec & mask)
+            all_stats.append(jax.tree_util.tree_map(lambda a: a[None], stats))
+        return X, log_w, recovered, stale, jax.tree_util.tree_map(lambda *a: jnp.concatenate(a), *all_stats)
+
+    def _scanned(self, keys, state, observation):
+        """All partitions in one ``lax.scan`` (``k`` traced); ``(X, log_w, recovered, stale DOFs, stats)``.
+
+        Equal counts: the set keeps its size. Unequal counts: the set lives in a buffer of :attr:`buffer_size`
+        rows whose first ``N_k`` rows are partition ``k``'s particles (the others are copies of the first).
+        Resampling, diffusion and weighing run on those rows (``lax.switch`` over the distinct ``(N_in, N_k)``
+        pairs and counts ``N_k``: each a small program, the same operations as the unrolled step), and the
+        likelihood on ``⌈N_k / chunk⌉`` chunks of ``chunk`` rows (a loop with a trip count of data), so that it is
+        traced and compiled once for all partitions and evaluates the same rows as a batch of ``N_k`` padded to
+        whole chunks."""
+        X, log_w = state.particles, state.log_weights
+        K, counts = len(self.groups), self.counts
+        B = self.buffer_size
+        masks = jnp.asarray(self._masks(X.shape[1]))
+        L = 1 if self.schedule is None else self.schedule.num_layers
+        pairs = sorted({(counts[k - 1], counts[k]) for k in range(K)} | {(n, n) for n in counts if L > 1})
+        sizes = sorted(set(counts))
+        table = np.asarray(
+            [
+                [pairs.index((counts[k - 1], counts[k])) for k in range(K)],
+                [pairs.index((counts[k], counts[k])) if L > 1 else 0 for k in range(K)],
+                [sizes.index(n) for n in counts],
+                list(counts),
+            ],
+            np.int32,
+        ).T  # (K, 4): resampling pair of the first layer, of the others, count index, count
+
+        def stage(carry, inputs):
+            X, log_w, recovered, stale = carry
+            kk, k, mask, row = inputs
+
+            def propose(ks, km, X, lw, std, layer):
+                if len(pairs) == 1:
+                    return self._propose(ks, km, X, lw, B, std)
+                branches = [functools.partial(self._propose_rows, n_in=a, n=b, rows=B) for a, b in pairs]
+                pair = jnp.where(layer == 0, row[0], row[1])
+                return jax.lax.switch(pair, branches, ks, km, X, lw, std)
+
+            def evaluate(X, lay):
+                if len(sizes) == 1:
+                    return self.loglik_batch(X, observation, lay)
+                return base.chunked_loglik(self.loglik_batch, X, observation, lay, row[3], self.chunk)
+
+            def accept(kr, X, ll, layer, b, s):
+                if len(sizes) == 1:
+                    return self._accept(kr, X, ll, layer, b, s, mask, state.estimate)
+                branches = [
+                    functools.partial(self._accept_rows, n=n, rows=B, previous_estimate=state.estimate)
+                    for n in sizes
+                ]
+                return jax.lax.switch(row[2], branches, kr, X, ll, layer, b, s, mask)
+
+            layer_fn = functools.partial(
+                self._layer, k=k, mask=mask, propose=propose, evaluate=evaluate, accept=accept
+            )
+            X, log_w, stats, rec = self._partition(kk, X, log_w, k, mask, layer_fn, False)
+            return (X, log_w, recovered | rec, stale | (rec & mask)), stats
+
+        carry = (
+            _pad_rows(X, B),
+            _pad_rows(log_w, B, -jnp.inf),
+            jnp.zeros((), bool),
+            jnp.zeros(X.shape[1], bool),
+        )
+        ks = jnp.arange(K, dtype=jnp.int32)
+        (X, log_w, recovered, stale), stats = jax.lax.scan(
+            stage, carry, (keys, ks, masks, jnp.asarray(table))
+        )
+        n = counts[-1]
+        return X[:n], log_w[:n], recovered, stale, stats
+
+    def _propose_rows(self, k_sel, k_move, X, log_w, std, *, n_in, n, rows):
+        """:meth:`_propose` from the first ``n_in`` rows of a buffer to ``n`` particles, padded to ``rows``."""
+        return _pad_rows(self._propose(k_sel, k_move, X[:n_in], log_w[:n_in], n, std), rows)
+
+    def _accept_rows(self, k_rec, X, ll, layer, beta_prev, surv_prev, mask, *, n, rows, previous_estimate):
+        """:meth:`_accept` of the first ``n`` rows of a buffer, padded back to ``rows`` (log-weights −inf)."""
+        X, log_w, stats, rec = self._accept(
+            k_rec, X[:n], ll[:n], layer, beta_prev, surv_prev, mask, previous_estimate
+        )
+        return _pad_rows(X, rows), _pad_rows(log_w, rows, -jnp.inf), stats, rec
+
+
+def _pad_rows(A: jnp.ndarray, rows: int, fill=None) -> jnp.ndarray:
+    """``A (n, …)`` extended to ``rows`` rows with copies of its first row (or ``fill``)."""
+    n = A.shape[0]
+    if n == rows:
+        return A
+    shape = (rows - n,) + A.shape[1:]
+    tail = jnp.broadcast_to(A[:1], shape) if fill is None else jnp.full(shape, fill, A.dtype)
+    return jnp.concatenate([A, tail])
 
 
 def hierarchical(

@@ -413,7 +413,11 @@ def apply_by_runs(A: jnp.ndarray, b: jnp.ndarray, points: jnp.ndarray, runs) -> 
 
 
 def transform_points(
-    R: jnp.ndarray, t: jnp.ndarray, points: jnp.ndarray, segment_of_point: Sequence[int] | np.ndarray
+    R: jnp.ndarray,
+    t: jnp.ndarray,
+    points: jnp.ndarray,
+    segment_of_point: Sequence[int] | np.ndarray,
+    by_runs: bool = True,
 ) -> jnp.ndarray:
     """Move segment-local points to the world: ``X_p = R_{s(p)} p + t_{s(p)}``.
 
@@ -421,6 +425,8 @@ def transform_points(
       R: ``(..., S, 3, 3)`` segment rotations; t: ``(..., S, 3)`` translations.
       points: ``(P, 3)`` local coordinates (may be traced: body dimensions are differentiable).
       segment_of_point: ``P`` static segment indices.
+      by_runs: False gathers each point's transform whatever the layout (a smaller program in reverse mode: the
+        slices of the runs become one pad and one sum per run and coordinate there).
 
     Returns:
       ``(..., P, 3)``, computed per coordinate over ``(..., P)`` arrays.
@@ -431,7 +437,7 @@ def transform_points(
     through ``lax.optimization_barrier`` (which XLA's CPU compiler drops, see :mod:`jaxmocap.likelihood.maps`).
     """
     runs = segment_runs(segment_of_point)
-    if 0 < len(runs) <= MAX_RUNS and runs[-1][1] >= MIN_RUN_LENGTH * len(runs):
+    if by_runs and 0 < len(runs) <= MAX_RUNS and runs[-1][1] >= MIN_RUN_LENGTH * len(runs):
         return jax.lax.optimization_barrier(jnp.stack(apply_by_runs(R, t, points, runs), -1))
     seg = np.asarray(segment_of_point, dtype=np.int32)
     Rp = R[..., seg, :, :]

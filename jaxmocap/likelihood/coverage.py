@@ -21,7 +21,15 @@ from jaxmocap.features.observation import Observation, as_float
 from jaxmocap.geometry import body as body_mod
 from jaxmocap.geometry import camera, flesh
 
-__all__ = ["COVERAGE_DMAX", "coverage", "coverage_energy", "d_max_of", "prepare", "silhouette_samples"]
+__all__ = [
+    "COVERAGE_DMAX",
+    "coverage",
+    "coverage_energy",
+    "d_max_of",
+    "prepare",
+    "primitives_energy",
+    "silhouette_samples",
+]
 
 #: ``d_max`` of the coverage term as a fraction of the image width (at least one pixel): about one pixel, so that
 #: a silhouette sample counts as uncovered as soon as it lies outside every projected limb, the mirror image of the
@@ -43,7 +51,7 @@ def _capsules(p: flesh.Primitives):
     return a, b, ra, rb
 
 
-def _energy(prims: flesh.Primitives, rig: camera.Rig, uv, w, d_max) -> jnp.ndarray:
+def primitives_energy(prims: flesh.Primitives, rig: camera.Rig, uv, w, d_max) -> jnp.ndarray:
     """Coverage energy per view ``(V,)`` of world primitives ``prims`` (see :func:`coverage_energy`)."""
     a, b, ra, rb = _capsules(prims)
     ua, za = camera.project_with_depth(rig, a)  # (V, S, 2), (V, S)
@@ -82,7 +90,7 @@ def coverage_energy(
     the clamped foot of the perpendicular; ``E_v = Σ_m w_m min(d_m / d_max, 1) / max(Σ_m w_m, 1)``.
     """
     R, t = body_mod.segment_poses(model, x)
-    return _energy(flesh.world_primitives(model, R, t), rig, uv, w, d_max)
+    return primitives_energy(flesh.world_primitives(model, R, t), rig, uv, w, d_max)
 
 
 def d_max_of(rig: camera.Rig, fraction: float = COVERAGE_DMAX) -> jnp.ndarray:
@@ -116,7 +124,7 @@ def coverage(g, obs: Observation, ctx) -> jnp.ndarray:
     against the silhouette samples of :func:`prepare`, ``(V,)``."""
     uv, w = ctx.aux
     d_max = d_max_of(ctx.rig, float(ctx.params.get("d_max", COVERAGE_DMAX)))
-    return _energy(g.primitives, ctx.rig, uv, w, d_max)
+    return primitives_energy(g.primitives, ctx.rig, uv, w, d_max)
 
 
 def silhouette_samples(mask: np.ndarray, M: int) -> tuple[np.ndarray, np.ndarray]:

@@ -8,6 +8,12 @@ of the program: ``trace_count`` stays 1),
 track-loss detection and re-initialisation, and incremental outputs (:mod:`jaxmocap.io.export`) with a resume
 checkpoint (``resume.npz``) after each frame.
 
+**Compiling ahead.** A fresh run compiles the filter step in a second thread while the first frame is initialised
+(the pose fit of :mod:`jaxmocap.tracking.init` compiles and runs programs of its own): XLA compiles independent
+programs side by side on two cores, and the step depends on the initial pose only through data. The setup gives a
+filter and state of the right structure (``setup.compile_arguments(key, observation)``; None where the structure
+needs the initial pose, e.g. colour references); the first call of the step then finds it compiled.
+
 **Track loss.** ``q_t = −max_i log p(z | x_i)`` of the last layer (the energy of the best particle) is compared
 with its median ``q_ref`` over the first frames after the initialisation: the track is lost when
 ``q_t > loss_ratio · q_ref`` for ``loss_frames`` consecutive frames, when the filter found no finite weight
@@ -22,6 +28,7 @@ from __future__ import annotations
 import math
 import os
 import pathlib
+import threading
 import time
 
 import jax
@@ -78,7 +85,11 @@ class TrackingLoop:
     Subclasses build ``self.setup`` in their constructor; the setup's attributes (``model``, ``frames``,
     ``likelihood``, ``features``, ``cues``, ``num_particles``, ``layers``, ``std`` …) are read through the run.
     ``filter`` is built once the initial state is known; ``trace_count`` counts compilations of the filter step.
+    ``compile_ahead``: compile the step while the first frame is initialised (module docstring);
+    ``compiled_ahead``: whether the first step found it compiled that way.
     """
+
+    compile_ahead = True
 
     def __init__(self, setup, out: str | os.PathLike, quiet: bool = False):
         self.setup = setup
@@ -87,6 +98,16 @@ class TrackingLoop:
         self.quiet = quiet
         self.trace_count = 0
         self.filter = None
+        self._ahead = None
+        self.compiled_ahead = False
+
+        def step(filt, key, state, tobs):
+            self.trace_count += 1
+            return filt.step(key, state, tobs)
+
+        # the filter (a pytree: its arrays, schedule values and likelihood leaves are data) is an argument, not a
+        # constant of the program: a filter that differs only in data reuses the compiled step
+        self._step = jax.jit(step)
 
     def __getattr__(self, name):
         if name == "setup":
@@ -101,13 +122,50 @@ class TrackingLoop:
     def _make_filter(self, x0: np.ndarray):
         self.filter = self.setup.make_filter(x0)
 
-        def step(filt, key, state, tobs):
-            self.trace_count += 1
-            return filt.step(key, state, tobs)
+    def _what(self) -> str:
+        o, setup = self.o, self.setup
+        return f"the {o.filter} step ({setup.model.name}, {particles_text(setup.num_particles)} particles)"
 
-        # the filter (a pytree: its arrays, schedule values and likelihood leaves are data) is an argument, not a
-        # constant of the program: a filter that differs only in data reuses the compiled step
-        self._step = jax.jit(step)
+    def _compile_ahead(self, t: int, tobs) -> None:
+        """Start compiling the step in a thread (module docstring), with the notice lines of
+        :class:`CompileNotice`; ``self._ahead`` is the thread, or None when the setup gives no arguments."""
+        make = getattr(self.setup, "compile_arguments", None)
+        if not self.compile_ahead or make is None or self.trace_count:
+            return
+        key = self._key(t)
+        args = make(key, tobs)
+        if args is None:
+            return
+
+        def work():
+            try:
+                with CompileNotice(self._what(), enabled=not self.quiet):
+                    self._step.lower(args[0], key, args[1], tobs).compile()
+                thread.done = True
+            except Exception:  # the first call compiles again, and raises what is wrong
+                pass
+
+        thread = threading.Thread(target=work, name="jaxmocap-compile", daemon=True)
+        thread.done = False
+        thread.start()
+        self._ahead = thread
+
+    def _join_ahead(self) -> None:
+        """Wait for a compilation ahead that no step has waited for (a run that failed before its first step)."""
+        ahead, self._ahead = self._ahead, None
+        if ahead is not None:
+            ahead.join()
+
+    def _first_call(self, filt, key, state, tobs):
+        """The first call of the step: after the compilation ahead, else in a :class:`CompileNotice`."""
+        ahead, self._ahead = self._ahead, None
+        if ahead is not None:
+            ahead.join()
+            if ahead.done:
+                self.compiled_ahead = True
+                return self._step(filt, key, state, tobs)
+        with CompileNotice(self._what(), enabled=not self.quiet):
+            return self._step(filt, key, state, tobs)
 
     def _key(self, t: int, purpose: int = 0):
         k = jax.random.fold_in(jax.random.key(int(self.o.seed)), int(t))
@@ -133,6 +191,7 @@ class TrackingLoop:
                     "empty scene? a median background of frames where the person hardly moves?); use --frames to "
                     "start where the person is visible, or another --foreground",
                 )
+            self._compile_ahead(t, obs[0])
             x0, spread, how = self.setup.initial_state(t, masks, obs[2])
             return i, obs, skipped, np.asarray(x0, np.float64), spread, how
         raise MocapInputError(None, "no frame of the input could be read")
@@ -161,6 +220,12 @@ class TrackingLoop:
 
     def run(self) -> dict:
         """Track every frame; returns the summary (also in ``diagnostics.json``)."""
+        try:
+            return self._run()
+        finally:
+            self._join_ahead()
+
+    def _run(self) -> dict:
         setup, o = self.setup, self.o
         model = setup.model
         dt = model.offset.dtype
@@ -229,12 +294,8 @@ class TrackingLoop:
                 if len(hist) == 2 and hist[0][0] == t - 2 and hist[1][0] == t - 1 and setup.velocity > 0:
                     v = np.where(trans, hist[1][1] - hist[0][1], 0.0) * setup.velocity
                     state = state._replace(particles=state.particles + jnp.asarray(v, dt))
-                if i == start:  # the first call compiles the step: say so, and how long it took
-                    what = (
-                        f"the {o.filter} step ({model.name}, {particles_text(setup.num_particles)} particles)"
-                    )
-                    with CompileNotice(what, enabled=not self.quiet):
-                        state, info = self._step(self.filter, self._key(t), state, tobs)
+                if i == start:  # compiles the step, or waits for it: say so, and how long it took
+                    state, info = self._first_call(self.filter, self._key(t), state, tobs)
                 else:
                     state, info = self._step(self.filter, self._key(t), state, tobs)
                 # prepare the next frame on the host while the step runs

@@ -25,9 +25,10 @@ import numpy as np
 from jaxmocap.choices import parse_frames
 from jaxmocap.errors import MocapInputError
 from jaxmocap.filters.factory import GRADIENT_FILTERS, make_filter, partition_counts
+from jaxmocap.geometry import flesh
 from jaxmocap.io.sources import BadFrame
 from jaxmocap.likelihood import compose as lk
-from jaxmocap.likelihood.coverage import coverage_energy, d_max_of
+from jaxmocap.likelihood.coverage import coverage_energy, d_max_of, primitives_energy
 from jaxmocap.likelihood.cues import DIFFERENTIABLE
 from jaxmocap.tracking import init as init_mod
 from jaxmocap.tracking.features import FeatureBuilder, TrackObservation
@@ -117,9 +118,25 @@ class ObservationLoglik:
         return jnp.where(jnp.isfinite(ll), ll, -jnp.inf)
 
     def _one(self, x, tobs, l):
-        ll = 0.0 if self.lik is None else self.lik.log_likelihood(x, tobs.image, l)
+        """The log-likelihood of one particle, as differentiated: the flesh points projected as world points
+        (``by_runs=False``), and the coverage term on the segment poses of the image cues when both use the same
+        body model (one forward kinematics, and one reverse pass through it)."""
+        if self.lik is None:
+            return -self.coverage_lambda[l] * self._cover(x, tobs)
+        lik = self.lik
+        pose = lik.pose_stage(x)
+        e = lik.energies_from_pose(pose, tobs.image, lik.prepare(tobs.image), by_runs=False)
+        ll = -jnp.sum(lik.layer_lambda(l) * e)
         if self.coverage_lambda is not None:
-            ll = ll - self.coverage_lambda[l] * self._cover(x, tobs)
+            if lik.model is self.model:
+                im = tobs.image
+                prims = flesh.world_primitives(self.model, pose["R"], pose["t"])
+                cover = jnp.sum(
+                    primitives_energy(prims, self.rig, im.silhouette, im.silhouette_w, self.d_max)
+                )
+            else:
+                cover = self._cover(x, tobs)
+            ll = ll - self.coverage_lambda[l] * cover
         return ll
 
     def batch_value_and_grad(self, X, tobs, layer):
@@ -373,6 +390,17 @@ class TrackSetup:
             prior_std=3.0 * self.std,
             survival_target=self.o.survival_target,
         )
+
+    def compile_arguments(self, key, obs):
+        """``(filter, state)`` with the structure and shapes of the first step's, before the initial pose is known
+        (:mod:`jaxmocap.tracking.loop`, compiling ahead): the filter around the rest pose (the pose is data of the
+        filter) and the state as shapes (``jax.ShapeDtypeStruct``); None when the colour cues' references, taken
+        at the initial pose, are still to be set (they are part of the likelihood's structure)."""
+        if self.needs_references:
+            return None
+        x0 = np.asarray(self.model.rest_pose, np.float64)
+        filt = self.make_filter(x0)
+        return filt, jax.eval_shape(lambda k: self.start(filt, k, x0, 1.0, obs), key)
 
     def start(self, filt, key, x0: np.ndarray, spread: float, obs):
         """The initial set: ``filter.init(key, x0, spread · Δ)``."""

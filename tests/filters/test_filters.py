@@ -276,10 +276,13 @@ GROUP_MASKS = np.array([[True, True, False], [False, False, True]])
 
 
 @pytest.mark.parametrize("hier", [False, True])
-def test_scanned_partitions_equal_the_unrolled_step(hier):
-    """``scan_partitions``: equal-count partitions run as one ``lax.scan`` with the partition index traced. The
-    likelihood is traced once instead of once per stage, and the particles, estimates, diagnostics and a
-    recovery in the second partition are those of the unrolled step (same keys, same operations)."""
+@pytest.mark.parametrize("counts", [(1500, 1500), (700, 1500)])
+def test_scanned_partitions_equal_the_unrolled_step(hier, counts):
+    """``scan_partitions``: the partitions run as one ``lax.scan`` with the partition index traced (unequal counts
+    through a padded buffer, the likelihood called on chunks of its rows). The likelihood is traced once instead of
+    once per stage, and the particles, estimates, diagnostics and a recovery in the second partition are those of
+    the unrolled step bit for bit (same keys, same operations; this likelihood's arithmetic does not depend on the
+    batch width)."""
     traces = []
 
     def ll(X, obs, k):  # reads the partition index as an array, so it works traced and as a Python int
@@ -292,28 +295,49 @@ def test_scanned_partitions_equal_the_unrolled_step(hier):
     sched = Schedule.deutscher(2, diffusion_scales=(1.0, 0.5))
     out = {}
     for scan in (False, True):
-        kw = dict(scan_partitions=scan)
+        kw = dict(scan_partitions=scan, chunk=256)
         f = (
-            hierarchical(ll, jnp.full(D, Q), GROUPS, (1500, 1500), sched, **kw)
+            hierarchical(ll, jnp.full(D, Q), GROUPS, counts, sched, **kw)
             if hier
-            else Partitioned(ll, jnp.full(D, Q), GROUPS, (1500, 1500), **kw)
+            else Partitioned(ll, jnp.full(D, Q), GROUPS, counts, **kw)
         )
         assert f.runs() == ([(0, 2)] if scan else [(0, 1), (1, 2)])
         traces.clear()
-        state, info = jax.jit(f.step)(key(3), f.init(key(2), jnp.zeros(D)), jax.tree.map(lambda a: a[6], obs))
+        step = jax.jit(f.step)
+        state = f.init(key(2), jnp.zeros(D))
+        for t in (5, 6):
+            state, info = step(key(3 + t), state, jax.tree.map(lambda a, t=t: a[t], obs))
         out[scan] = (state, info, len(traces))
     (s0, i0, n0), (s1, i1, n1) = out[False], out[True]
     assert (n0, n1) == ((4 if hier else 2), 1)  # hierarchical unrolled: each level's first layer apart
     assert bool(i0.recovered) and bool(i1.recovered)
-    np.testing.assert_allclose(s1.particles, s0.particles, rtol=0, atol=1e-6)
-    np.testing.assert_allclose(i1.estimate, i0.estimate, rtol=0, atol=1e-6)
-    np.testing.assert_array_equal(i1.layers.num_nonfinite, i0.layers.num_nonfinite)
-    np.testing.assert_allclose(i1.layers.ess, i0.layers.ess, rtol=1e-5)
-    # counts of different sizes: the first partition of a size runs alone, the rest of its run is scanned
-    f = Partitioned(ll, jnp.full(D, Q), ((0,), (1,), (2,)), (40, 30, 30), scan_partitions=True)
-    assert f.runs() == [(0, 1), (1, 2), (2, 3)]
-    f = Partitioned(ll, jnp.full(4, Q), ((0,), (1,), (2,), (3,)), (40, 30, 30, 30), scan_partitions=True)
-    assert f.runs() == [(0, 1), (1, 2), (2, 4)]
+    assert s1.particles.shape == (counts[-1], D) and i1.layers.ess.shape == (2, 2 if hier else 1)
+    np.testing.assert_array_equal(s1.particles, s0.particles)
+    np.testing.assert_array_equal(s1.log_weights, s0.log_weights)
+    np.testing.assert_array_equal(i1.estimate, i0.estimate)
+    for a, b in zip(i1.layers, i0.layers, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_chunked_loglik_evaluates_the_rows_of_whole_chunks():
+    """:func:`base.chunked_loglik`: the rows of the ``⌈n / chunk⌉`` chunks holding the first ``n`` rows are those of
+    the likelihood on the whole buffer, the others ``-inf``; one trace serves every ``n``."""
+    traces = []
+
+    def ll(X, obs, layer):
+        traces.append(X.shape)
+        return -jnp.sum((X - obs) ** 2, axis=1)
+
+    X = jnp.asarray(np.random.default_rng(0).integers(-9, 9, size=(12, 2)), jnp.float32)  # exact arithmetic
+    f = jax.jit(lambda X, n: base.chunked_loglik(ll, X, jnp.ones(2), 0, n, 4))
+    full = np.asarray(ll(X, jnp.ones(2), 0))
+    for n, rows in ((1, 4), (4, 4), (5, 8), (12, 12)):
+        out = np.asarray(f(X, n))
+        np.testing.assert_array_equal(out[:rows], full[:rows])
+        assert np.all(out[rows:] == -np.inf)
+    assert traces == [(12, 2), (4, 2)]  # the direct call above and the loop body, traced once
+    with pytest.raises(ValueError, match="multiple of the chunk"):
+        base.chunked_loglik(ll, X, jnp.ones(2), 0, 3, 5)
 
 
 def _all_filters():

@@ -72,7 +72,7 @@ def test_filter_factory_builds_every_filter():
         if isinstance(f, Partitioned):
             assert f.groups == partition_groups(model)
             assert (f.schedule is not None) == (name == "hierarchical")
-            assert f.scan_partitions and f.runs() == [(0, len(f.groups))]  # one count: a single scanned stage
+            assert f.scan_partitions and f.runs() == [(0, len(f.groups))]  # a single scanned stage
         # the heading is averaged as an angle
         assert f.circular[model.dof_index("body_rz")] and not f.circular[0]
     assert kinds["sir"] is SIR and kinds["icondensation"] is ICondensation
@@ -80,7 +80,8 @@ def test_filter_factory_builds_every_filter():
     assert kinds["partitioned"] is Partitioned and kinds["hierarchical"] is Partitioned
     counts = (30, 10, 20, 20)
     f = make_filter("partitioned", _toy_loglik, model, np.ones(model.num_dofs), counts, 1, np.zeros(13), 1)
-    assert f.counts == counts and not f.scan_partitions  # unequal counts: partitions unrolled
+    assert f.counts == counts and f.runs() == [(0, 4)]  # unequal counts: scanned too, through a padded buffer
+    assert f.buffer_size == 128  # the largest count rounded up to whole chunks
     with pytest.raises(ValueError, match="unknown filter"):
         make_filter("kalman", _toy_loglik, model, np.ones(13), 10, 1, np.zeros(13), np.ones(13))
 
@@ -206,6 +207,8 @@ def test_end_to_end_error_is_bounded(sequence, tracked):
 @pytest.mark.slow
 def test_compiled_once_and_outputs(sequence, tracked):
     run, out, summary = tracked
+    # compiled ahead, while the first frame was initialised, with the structure of the step it then ran
+    assert run.compiled_ahead
     assert run.trace_count == 1 and summary["compilations"] == 1
     assert run._step._cache_size() == 1
     poses = export.load_poses(out)
@@ -300,6 +303,7 @@ def test_colour_cues_track_with_first_frame_references_and_resume(sequence, tmp_
     opts = dict(model="upper14", filter="apf", cues=cues, particles=30, layers=2, frames="0:4", seed=3)
     full = tracker.Tracker(SequenceSource(sequence), tmp_path / "full", TrackOptions(**opts), quiet=True)
     full.run()
+    assert not full.compiled_ahead and full.trace_count == 1  # the references are structure: compiled after them
     lik = full.likelihood
     names = [c.name for c in lik.cues]
     assert all(lik.references[names.index(n)] is not None for n in ("colour_histogram", "colour_template"))
@@ -344,3 +348,22 @@ def test_hybrid_filter_of_the_tracker_takes_the_fast_gradient_path(sequence, mon
     state = f.init(jax.random.key(0), jnp.asarray(run.model.rest_pose))
     out = jax.eval_shape(f.step, jax.random.key(1), state, tobs)  # traces every gradient move of the step
     assert out[0].particles.shape == state.particles.shape
+
+
+def test_tracker_gradient_is_that_of_its_batch_likelihood(sequence):
+    """The tracker's per-particle value and gradient (flesh points projected as world points, the coverage term on
+    the image cues' segment poses) are those of its batch likelihood (flesh points run by run, its own forward
+    kinematics) differentiated by ``jax.vjp``: the same function up to float32 rounding."""
+    from jaxmocap.likelihood import gradients
+
+    opts = TrackOptions(filter="hybrid", model="upper9", cues="foreground,edge_distance,coverage:4")
+    run = tracker.Tracker(SequenceSource(sequence), os.devnull, opts, quiet=True)
+    tobs = run._observe(0)[0]
+    ll = run.loglik
+    x0 = np.asarray(run.model.rest_pose, np.float32)
+    X = jnp.asarray(x0 + 0.03 * np.random.default_rng(0).normal(size=(4, x0.size)), jnp.float32)
+    v, g = jax.jit(lambda X: ll.batch_value_and_grad(X, tobs, 1))(X)
+    v_ref, g_ref = jax.jit(lambda X: gradients.vjp_value_and_grad(ll, X, tobs, 1))(X)
+    assert np.all(np.isfinite(v_ref)) and np.any(np.asarray(g_ref) != 0)
+    np.testing.assert_allclose(v, v_ref, rtol=1e-5)
+    np.testing.assert_allclose(g, g_ref, rtol=1e-3, atol=1e-3 * float(np.max(np.abs(g_ref))))
