@@ -303,7 +303,9 @@ def test_colour_cues_track_with_first_frame_references_and_resume(sequence, tmp_
     opts = dict(model="upper14", filter="apf", cues=cues, particles=30, layers=2, frames="0:4", seed=3)
     full = tracker.Tracker(SequenceSource(sequence), tmp_path / "full", TrackOptions(**opts), quiet=True)
     full.run()
-    assert not full.compiled_ahead and full.trace_count == 1  # the references are structure: compiled after them
+    assert (
+        not full.compiled_ahead and full.trace_count == 1
+    )  # the references are structure: compiled after them
     lik = full.likelihood
     names = [c.name for c in lik.cues]
     assert all(lik.references[names.index(n)] is not None for n in ("colour_histogram", "colour_template"))
