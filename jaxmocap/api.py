@@ -147,6 +147,10 @@ def write_config(out: str | os.PathLike, values: Mapping, setup=None) -> pathlib
         return None
     if setup is not None:
         mine = json.loads(json.dumps(setup.description()))
+        if (
+            "options" not in mine
+        ):  # a run configured otherwise (PARSEC's bodytrack setup): no TrackOptions to write
+            return None
         if run.get("options") != mine["options"] or run.get("input") != mine["input"]:
             return None  # the folder holds another run (this one was refused)
     values = _resolved(values, setup) if setup is not None else dict(values)
