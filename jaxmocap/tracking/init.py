@@ -124,6 +124,18 @@ def rest_facing(model, rig: camera.Rig, point: np.ndarray) -> np.ndarray:
     return move_root_over(model, x, point)
 
 
+def check_initial(model: body_mod.BodyModel, source, init: str, t0: int) -> None:
+    """Raise :class:`MocapInputError` where ``init`` cannot give a first pose whatever the frame shows (no ground
+    truth for ``groundtruth``, an unreadable or wrong-sized file): checked before the step compiles, so a bad option
+    costs no compilation."""
+    if init == "groundtruth" and source.groundtruth is None:
+        raise MocapInputError(
+            getattr(source, "root", None), "--init groundtruth needs a sequence with groundtruth.npz"
+        )
+    if init not in ("auto", "groundtruth", "ik"):
+        pose_from_file(model, pathlib.Path(init), t0)
+
+
 def initial_state(
     model: body_mod.BodyModel, source, rig: camera.Rig, init: str, t0: int, masks, fd
 ) -> tuple[np.ndarray, float, str]:

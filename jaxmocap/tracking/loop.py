@@ -191,6 +191,9 @@ class TrackingLoop:
                     "empty scene? a median background of frames where the person hardly moves?); use --frames to "
                     "start where the person is visible, or another --foreground",
                 )
+            check = getattr(self.setup, "check_initial", None)
+            if check is not None:
+                check(t)
             self._compile_ahead(t, obs[0])
             x0, spread, how = self.setup.initial_state(t, masks, obs[2])
             return i, obs, skipped, np.asarray(x0, np.float64), spread, how

@@ -423,6 +423,10 @@ class TrackSetup:
         tobs, masks = self.features(fd, self.model.num_dofs)
         return tobs, masks, fd, None
 
+    def check_initial(self, t0: int) -> None:
+        """Fail now where ``--init`` cannot work (:func:`jaxmocap.tracking.init.check_initial`)."""
+        init_mod.check_initial(self.model, self.source, self.o.init, t0)
+
     def initial_state(self, t0: int, masks, fd) -> tuple[np.ndarray, float, str]:
         """``(x0, spread factor, how)`` for the first frame (:func:`jaxmocap.tracking.init.initial_state`)."""
         return init_mod.initial_state(self.model, self.source, self.features.rig, self.o.init, t0, masks, fd)
