@@ -84,6 +84,8 @@ def loglik(X, o, layer):
     return lik.batch(X, o, layer.index)
 
 
+weigh = jax.jit(loglik)  # the likelihood compiled once for the cells below that call it outside a filter
+
 std = jnp.where(jnp.asarray(model.angular), 0.15, 0.03).astype(jnp.float32)
 scales = tuple(0.5**l for l in range(LAYERS))
 schedules = {
@@ -121,7 +123,7 @@ fig.savefig(OUT / "beta_per_layer.png", dpi=80)
 # shrinking steps ``ε_l = 1/(1 + l)`` (the monotone variant never lowers β).
 
 # %%
-ll0 = loglik(
+ll0 = weigh(
     jnp.asarray(start) + 0.1 * jax.random.normal(jax.random.key(2), (N, model.num_dofs)),
     frames[1].observation,
     base.Layer(jnp.int32(LAYERS - 1), jnp.float32(0)),
@@ -147,18 +149,29 @@ fig.savefig(OUT / "correction_rule.png", dpi=80)
 
 # %%
 sched = schedules["survival α = 0.5"]
+
+
+@jax.jit
+def move(k1, k2, X, log_w, l):
+    """Resample, then diffuse with layer ``l``'s scale (compiled once: the layer index is data)."""
+    X = base.resample("systematic", k1, X, log_w, N)[0]
+    return base.diffuse(k2, X, std * jnp.asarray(scales)[l], model.lower, model.upper)
+
+
+@jax.jit
+def temper(ll):
+    """Normalised log-weights ``β ll`` with Deutscher's β."""
+    return base.normalise(annealing.solve_beta(ll, 0.5).beta * ll)[0]
+
+
 X = f.init(jax.random.key(0), start).particles
 log_w = jnp.full((N,), -jnp.log(N))
-weigh = jax.jit(loglik)
 clouds = []
 key = jax.random.key(3)
 for l in range(LAYERS):
     key, k1, k2 = jax.random.split(key, 3)
-    X = base.resample("systematic", k1, X, log_w, N)[0]
-    X = base.diffuse(k2, X, std * scales[l], model.lower, model.upper)
-    ll = weigh(X, frames[1].observation, base.Layer(jnp.int32(l), jnp.float32(0)))
-    b = annealing.solve_beta(ll, 0.5).beta
-    log_w = base.normalise(b * ll)[0]
+    X = move(k1, k2, X, log_w, jnp.int32(l))
+    log_w = temper(weigh(X, frames[1].observation, base.Layer(jnp.int32(l), jnp.float32(0))))
     clouds.append((np.asarray(X[:, [i, j]]), np.asarray(jnp.exp(log_w))))
 truth = frames[1].state
 fig, axes = plt.subplots(1, LAYERS, figsize=(3 * LAYERS, 3), sharex=True, sharey=True)

@@ -72,7 +72,7 @@ def test_surface_geometry_by_runs_equals_world_projection(scene):
     the camera (outward normal towards its centre) and lie in the image."""
     model, rig, x, obs = scene
     lik = L.Likelihood.create(model, rig, [L.Cue("depth")], surface_points=300)
-    g = lik.geometry(x, (H, W))
+    g = jax.jit(lambda lik, x: lik.geometry(x, (H, W)))(lik, x)
     R, t = body.segment_poses(model, x)
     Xw, Nw = lik.surface.world(R, t)
     uv, z = camera.project_with_depth(rig, Xw)
@@ -88,7 +88,7 @@ def test_surface_geometry_by_runs_equals_world_projection(scene):
     # the per-point path (points not stored segment by segment) gives the same fields
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(kinematics, "MAX_RUNS", 0)
-        g2 = lik.geometry(x, (H, W))
+        g2 = jax.jit(lambda lik, x: lik.geometry(x, (H, W)))(lik, x)  # a new function: traced anew
     np.testing.assert_allclose(np.asarray(g2.surface_uv), np.asarray(g.surface_uv), atol=2e-3)
     for f in ("surface_facing", "surface_index", "surface_visible_index"):
         assert np.mean(np.asarray(getattr(g2, f)) == np.asarray(getattr(g, f))) > 0.99
@@ -162,7 +162,9 @@ def test_schedules_and_compile_once(scene):
 
     jf = jax.jit(f)
     X = x + 0.05 * jax.random.normal(jax.random.key(0), (64, model.num_dofs))
-    e = np.asarray(jax.vmap(lik.energies, in_axes=(0, None))(X, obs))
+    e = np.asarray(
+        jax.jit(lambda lik, X, obs: jax.vmap(lik.energies, in_axes=(0, None))(X, obs))(lik, X, obs)
+    )
     for layer in range(3):
         # separately compiled programs may round a sample to a neighbouring pixel: one sample is 1/P of an energy
         np.testing.assert_allclose(np.asarray(jf(X, obs, layer)), -(e * lam[layer]).sum(1), atol=1.0 / 200)
@@ -184,5 +186,5 @@ def test_all_invalid_particles_give_minus_inf_not_nan(scene):
     model, rig, x, obs = scene
     lik = L.Likelihood.create(model, rig, [L.Cue("edges")], surface_points=100)
     X = jnp.full((4, model.num_dofs), jnp.nan)
-    ll = lik.batch(X, obs, 0)
+    ll = jax.jit(lambda lik, X, obs: lik.batch(X, obs, 0))(lik, X, obs)
     assert not bool(jnp.any(jnp.isnan(ll)))
