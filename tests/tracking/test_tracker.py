@@ -288,7 +288,9 @@ def test_colour_cues_track_with_first_frame_references_and_resume(sequence, tmp_
     opts = dict(model="upper14", filter="apf", cues=cues, particles=30, layers=2, frames="0:4", seed=3)
     full = tracker.Tracker(SequenceSource(sequence), tmp_path / "full", TrackOptions(**opts), quiet=True)
     full.run()
-    assert not full.compiled_ahead and full.trace_count == 1  # the references are structure: compiled after them
+    assert (
+        not full.compiled_ahead and full.trace_count == 1
+    )  # the references are structure: compiled after them
     lik = full.likelihood
     names = [c.name for c in lik.cues]
     assert all(lik.references[names.index(n)] is not None for n in ("colour_histogram", "colour_template"))
@@ -333,6 +335,19 @@ def test_hybrid_filter_of_the_tracker_takes_the_fast_gradient_path(sequence, mon
     state = f.init(jax.random.key(0), jnp.asarray(run.model.rest_pose))
     out = jax.eval_shape(f.step, jax.random.key(1), state, tobs)  # traces every gradient move of the step
     assert out[0].particles.shape == state.particles.shape
+
+
+def test_every_filter_built_twice_has_one_structure(sequence):
+    """The filter the tracker compiles ahead (around the rest pose) and the one it runs (around the initial pose)
+    are the same program: for every filter name, two filters built around different poses have one tree
+    structure (the pose, the likelihood's arrays are leaves or held by identity; the functions are the same)."""
+    for name in FILTERS:
+        cues = "foreground,edge_distance,coverage:4" if name in ("hybrid", "apf-refine") else None
+        opts = TrackOptions(filter=name, model="upper9", cues=cues)
+        run = tracker.Tracker(SequenceSource(sequence), os.devnull, opts, quiet=True)
+        x0 = np.asarray(run.model.rest_pose, np.float64)
+        a, b = run.setup.make_filter(x0), run.setup.make_filter(x0 + 0.1)
+        assert jax.tree_util.tree_structure(a) == jax.tree_util.tree_structure(b), name
 
 
 def test_tracker_gradient_is_that_of_its_batch_likelihood(sequence):
