@@ -92,3 +92,11 @@ def write_result(path: pathlib.Path, text: str, command: str) -> pathlib.Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(regenerate_line(command) + text)
     return path
+
+
+def report(path: pathlib.Path, text: str, command: str, write: bool = True) -> str:
+    """Print a script's Markdown ``text`` and, with ``write``, save it with :func:`write_result`; returns it."""
+    print(text)
+    if write:
+        write_result(path, text + "\n", command)
+    return text

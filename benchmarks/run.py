@@ -93,7 +93,11 @@ def _kinematics(quick: bool) -> str:
 
 def _parsec(quick: bool) -> str:
     m = load("parsec")
-    argv = ["--particles", "100", "--repeats", "2", "--numpy-repeats", "1"] if quick else ["--repeats", "21"]
+    argv = (
+        ["--particles", "100", "--repeats", "2", "--numpy-repeats", "1", "--bodytrack-rounds", "0"]
+        if quick
+        else ["--repeats", "21"]
+    )
     return _captured(m.main, m._args(argv))
 
 
@@ -190,6 +194,12 @@ SCRIPTS: dict[str, Script] = {
     "scaling": Script(
         "Likelihood scaling", "perf/scaling.py", writes=("scaling.md", "scaling.png"), fn=_scaling
     ),
+    "vs_bodytrack": Script(
+        "jaxmocap vs PARSEC bodytrack built from source: likelihood and tracker, interleaved, idle and loaded",
+        "perf/vs_bodytrack.py",
+        "--rounds 5 --out benchmarks/results/vs_bodytrack.md",
+        writes=("vs_bodytrack.md",),
+    ),
     "scale": Script(
         "Scaling beyond one device (sharded particles, batched runs, memory)", "perf/bench_scale.py"
     ),
@@ -242,6 +252,12 @@ SCRIPTS: dict[str, Script] = {
         writes=("foreground_iou.md",),
         fn=_foreground,
     ),
+    "plate_subtraction": Script(
+        "Background subtraction against the synthesiser's plates",
+        "experiments/plate_subtraction.py",
+        "--size 320x240",
+        writes=("plate_subtraction.md",),
+    ),
     "accuracy": Script(
         "Tracking accuracy", "experiments/accuracy.py", writes=("accuracy.md",), fn=_accuracy, slow=True
     ),
@@ -262,6 +278,11 @@ SCRIPTS: dict[str, Script] = {
         "experiments/make_synth_montages.py",
         writes=("synth_*.png",),
     ),
+    "scene_montages": Script(
+        "Montages of the textured subject in the 3D room: detections, plate, subtraction, depth, skin blobs",
+        "experiments/make_scene_montages.py",
+        writes=("scene_*.png",),
+    ),
     "parsec_track": Script(
         "PARSEC sequenceB_2 tracked, against bodytrack",
         "experiments/parsec_track.py",
@@ -276,10 +297,26 @@ SCRIPTS: dict[str, Script] = {
         writes=("parsec_overlay.png",),
         env="JAX_PLATFORMS=cpu",
     ),
+    "smoothing": Script(
+        "Exported-track error with and without Butterworth smoothing (the default cut-off)",
+        "experiments/smoothing.py",
+        "--seeds 3",
+        writes=("smoothing.md",),
+    ),
+    "blender_bvh": Script(
+        "Blender's BVH importer reads track.bvh: armature joints against the run's (needs Blender)",
+        "experiments/blender_bvh.py",
+        writes=("blender_bvh.md",),
+    ),
+    "run_pictures": Script(
+        "The pictures of a tracked run: plots/ and the overlay montage",
+        "experiments/run_pictures.py",
+        writes=("run_*.png",),
+    ),
     "pose2sim_track": Script(
-        "Pose2Sim demo recording tracked, against Pose2Sim's triangulation",
+        "Pose2Sim demo recording tracked from its project folder, against Pose2Sim's triangulation",
         "experiments/pose2sim_track.py",
-        "--out /tmp/p2s/full3 --cues foreground,edge_distance,coverage:4,keypoints:4 --report",
+        "--out /tmp/p2s --report",
         writes=("pose2sim.md", "pose2sim_overlay.png"),
         env="JAX_PLATFORMS=cpu",
     ),

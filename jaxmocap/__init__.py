@@ -12,6 +12,8 @@ The names below are the public API, imported on first use (``import jaxmocap`` i
 
     import jaxmocap
     rig = jaxmocap.load_calibration("calib.toml")
+    result = jaxmocap.track(videos=["a.mp4", "b.mp4"], calibration="calib.toml", particles=300)
+    result.joints  # (T, 15, 3)
     tracker = jaxmocap.Tracker(source, "run1", jaxmocap.TrackOptions(filter="apf", particles=300))
 """
 
@@ -24,6 +26,8 @@ __version__ = "0.1.0"
 #: public name -> module that defines it
 _API = {
     # tracking
+    "track": "jaxmocap.api",
+    "TrackResult": "jaxmocap.api",
     "Tracker": "jaxmocap.tracking.tracker",
     "TrackOptions": "jaxmocap.tracking.options",
     "TrackSetup": "jaxmocap.tracking.setup",

@@ -5,8 +5,10 @@ Subcommands:
 * ``jaxmocap calib show FILE`` — print the cameras of any calibration the project reads (OpenCV FileStorage
   YAML/XML, Pose2Sim/OpenCV TOML, caliscope TOML, Qualisys ``.qca.txt``, a PARSEC ``CALIB`` folder).
 * ``jaxmocap calib convert IN OUT.toml`` — write it as the canonical Pose2Sim-layout TOML.
-* ``jaxmocap synth --motion CLIP --rig {stereo,frontal-lateral,ring4,FILE} --out DIR [...]`` — render a synthetic
-  multi-view sequence of a mocap clip with exact ground truth (:func:`jaxmocap.synth.generate.synthesize`).
+* ``jaxmocap synth --motion CLIP [--mapping FILE.toml] [--scale S] --rig {stereo,frontal-lateral,ring4,FILE} --out
+  DIR [...]`` — render a synthetic multi-view sequence of a mocap clip of any skeleton with exact ground truth
+  (:func:`jaxmocap.synth.generate.synthesize`).
+* ``jaxmocap plot RUN`` — draw a tracking run (trajectories, 3D skeleton, per-frame quality) as PNG files.
 * ``jaxmocap sweep SEQ ... --filters F,G --seeds A:B --out results.csv`` — sequences × filters × seeds, the
   seeds in one compiled call spread over the available devices, into one table (:mod:`jaxmocap.tracking.sweep`).
 
@@ -23,6 +25,7 @@ import numpy as np
 
 from jaxmocap import __version__, choices
 from jaxmocap.errors import MocapInputError
+from jaxmocap.tracking.smoothing import DEFAULT_CUTOFF_HZ
 
 
 def _calib_show(args) -> int:
@@ -30,6 +33,9 @@ def _calib_show(args) -> int:
     from jaxmocap.io import calibration
 
     rig = calibration.load_calibration(args.file)
+    rig, note = calibration.check_units(rig, "auto", args.file)
+    if note:
+        print(f"jaxmocap: note: {note}", file=sys.stderr)
     centres = np.asarray(camera.camera_centres(rig.to_jax()))
     print(f"{rig.num_views} cameras in {args.file}")
     for v, name in enumerate(rig.names):
@@ -66,6 +72,8 @@ def _synth(args) -> int:
             rig=args.rig,
             asf=args.asf,
             scale=args.scale,
+            mapping=args.mapping,
+            up_axis=args.up_axis,
             frames=args.frames,
             fps=args.fps,
             size=args.size,
@@ -77,6 +85,7 @@ def _synth(args) -> int:
             depth_smooth=args.depth_smooth,
             illumination=args.illumination,
             blur=args.blur,
+            clothing=args.clothing,
             overwrite=args.overwrite,
             licence=args.licence,
             progress=progress,
@@ -127,54 +136,66 @@ def _print_summary(summary: dict, out) -> None:
     print(f"track lost in {s['lost_frames']} frame(s), {s['reinitialisations']} re-initialisation(s)")
     if s.get("mean_error_mm") is not None:
         print(f"mean joint error against the ground truth: {s['mean_error_mm']:.1f} mm")
-    files = ["poses.npz", "poses.csv", "diagnostics.json", "track.bvh"]
-    files += [pathlib.Path(p).name for p in s.get("overlays", [])]
+    if s.get("mean_error_smoothed_mm") is not None:
+        print(f"mean joint error of the exported track ({s['smooth']}): {s['mean_error_smoothed_mm']:.1f} mm")
+    files = ["poses.npz", "poses.csv", "diagnostics.json"]
+    exports = [f"track.bvh ({s['bvh_units']}, y up)" if f == "track.bvh" else f for f in s.get("exports", [])]
+    files += exports + [pathlib.Path(p).name for p in s.get("overlays", [])]
+    if s.get("plots"):
+        files.append(f"plots/ ({', '.join(s['plots'])})")
     print(f"wrote {', '.join(files)} to {out}")
+    if exports:
+        gaps = s.get("interpolated_frames", 0)
+        print(
+            f"exported track: smoothing {s['smooth']}, {gaps} frame(s) interpolated (raw estimates in poses.npz)"
+        )
 
 
-def _track_options(args):
-    from jaxmocap.tracking.options import TrackOptions
+#: ``jaxmocap track`` arguments that are inputs rather than options (see :data:`jaxmocap.tracking.options.INPUT_KEYS`)
+_INPUTS = ("input", "videos", "calibration", "keypoints", "depth")
 
-    return TrackOptions(
-        model=args.model,
-        body=args.body,
-        filter=args.filter,
-        particles=args.particles,
-        layers=args.layers,
-        cues=args.cues,
-        seed=args.seed,
-        frames=args.frames,
-        init=args.init,
-        foreground=args.foreground,
-        downsample=args.downsample,
-        on_bad_frame=args.on_bad_frame,
-        overlay=args.overlay,
-        resume=args.resume,
-        overwrite=args.overwrite,
+
+def _track_values(args) -> dict:
+    """The run's settings: the ``--config`` file's, overridden by the options given on the command line (inputs
+    given on the command line replace the file's inputs as a whole)."""
+    from jaxmocap.tracking.options import RUN_KEYS, load_config, option_types
+
+    values = load_config(args.config) if args.config else {}
+    given = {
+        k: getattr(args, k)
+        for k in (*option_types(), *_INPUTS, *RUN_KEYS)
+        if getattr(args, k, None) is not None
+    }
+    if any(k in given for k in ("input", "videos")):
+        for k in _INPUTS:
+            values.pop(k, None)
+    values.update(given)
+    if values.get("out") is None:
+        raise ValueError('--out is required (or out = "DIR" in the --config file)')
+    return values
+
+
+def _open_source(values: dict, options):
+    from jaxmocap.api import open_source
+
+    folder = values.get("input")
+    if folder is not None and values.get("videos") is None and not any(values.get(k) for k in _INPUTS[2:]):
+        from jaxmocap.parsec import inputs as parsec_sequence
+
+        if parsec_sequence.is_parsec_folder(folder):  # a PARSEC bodytrack sequence (CALIB/, CAM<k>/, FG<k>/)
+            return parsec_sequence.ParsecSource(folder)
+    return open_source(
+        folder,
+        values.get("videos"),
+        values.get("calibration"),
+        values.get("keypoints"),
+        values.get("depth"),
+        options.keypoint_layout,
+        options.calibration_units,
     )
 
 
-def _open_source(args):
-    from jaxmocap.io import sources
-
-    if (args.input is None) == (args.videos is None):
-        raise ValueError("give either a sequence folder (INPUT) or --videos V1 V2 ... with --calibration")
-    if args.videos is not None:
-        if args.calibration is None:
-            raise ValueError("--videos needs --calibration FILE")
-        return sources.VideoSource(args.videos, args.calibration, args.keypoints, args.depth)
-    if args.keypoints or args.depth or args.calibration:
-        raise ValueError(
-            "--calibration, --keypoints and --depth go with --videos (a sequence folder has its own)"
-        )
-    from jaxmocap.parsec import inputs as parsec_sequence
-
-    if parsec_sequence.is_parsec_folder(args.input):  # a PARSEC bodytrack sequence (CALIB/, CAM<k>/, FG<k>/)
-        return parsec_sequence.ParsecSource(args.input)
-    return sources.SequenceSource(args.input)
-
-
-def _make_run(source, args, options):
+def _make_run(source, out, options, quiet: bool):
     """The tracking run for ``source``: bodytrack's configuration for a PARSEC sequence, else the Tracker."""
     from jaxmocap.parsec.inputs import ParsecSource
     from jaxmocap.tracking import tracker
@@ -182,8 +203,8 @@ def _make_run(source, args, options):
     if isinstance(source, ParsecSource):
         from jaxmocap.parsec.track import ParsecTracker
 
-        return ParsecTracker(source, args.out, options, quiet=args.quiet)
-    return tracker.Tracker(source, args.out, options, quiet=args.quiet)
+        return ParsecTracker(source, out, options, quiet=quiet)
+    return tracker.Tracker(source, out, options, quiet=quiet)
 
 
 def _silence_opencv() -> None:
@@ -194,19 +215,38 @@ def _silence_opencv() -> None:
 
 
 def _track(args) -> int:
-    _silence_opencv()
+    import dataclasses
 
+    from jaxmocap.api import run_options, write_config
+
+    _silence_opencv()
+    out, quiet = args.out, bool(args.quiet)
     try:
-        options = _track_options(args)
-        source = _open_source(args)
+        values = _track_values(args)
+        out, quiet = values["out"], bool(values.get("quiet", False))
+        options = run_options(values)
+        source = _open_source(values, options)
         try:
-            run = _make_run(source, args, options)
-            summary = run.run()
+            project = getattr(source, "project", None)
+            if options.frames is None and project and project.get("frames"):
+                options = dataclasses.replace(options, frames=project["frames"])
+                values["frames"] = options.frames
+            run = _make_run(source, out, options, quiet)
+            if not quiet:
+                for note in getattr(run.setup, "notes", []):
+                    print(f"jaxmocap: note: {note}", file=sys.stderr)
+            try:
+                summary = run.run()
+            finally:
+                if hasattr(run.setup, "cues") and hasattr(run.setup, "num_particles"):
+                    write_config(
+                        out, {k: v for k, v in values.items() if k not in ("out", "quiet")}, run.setup
+                    )
         finally:
             source.close()
     except KeyboardInterrupt:
         print(
-            f"\njaxmocap: interrupted; the frames tracked so far are in {args.out} (--resume continues)",
+            f"\njaxmocap: interrupted; the frames tracked so far are in {out} (--resume continues)",
             file=sys.stderr,
         )
         return 130
@@ -215,8 +255,8 @@ def _track(args) -> int:
     except ValueError as e:  # a bad option value
         print(f"jaxmocap: error: {e}", file=sys.stderr)
         return 2
-    if not args.quiet:
-        _print_summary(summary, args.out)
+    if not quiet:
+        _print_summary(summary, out)
     return 0
 
 
@@ -238,6 +278,27 @@ def evaluate_runs(pred: list, gt: str, out: str | None = None, quiet: bool = Fal
         viz.plot_error_over_time(report, f"{stem}_error_over_time.png")
         viz.plot_per_joint(report, f"{stem}_per_joint.png")
     return report
+
+
+def _smooth_spec(text: str) -> str:
+    """``--smooth``: checked here (the cut-off against the frame rate when the input is open)."""
+    from jaxmocap.tracking.smoothing import parse_smooth
+
+    try:
+        parse_smooth(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+    return text
+
+
+def _plot(args) -> int:
+    from jaxmocap.eval import plots
+
+    if not pathlib.Path(args.run).is_dir():
+        raise MocapInputError(args.run, "no such folder")
+    paths = plots.plot_run(args.run, args.out)
+    print(f"wrote {', '.join(str(p) for p in paths)}")
+    return 0
 
 
 def _eval(args) -> int:
@@ -419,6 +480,7 @@ def _add_sweep_command(sub) -> None:
 
 # the choices of a tracking run (jaxmocap.choices does not import JAX: building the parser stays fast)
 _MODELS, _FILTERS, _FOREGROUNDS = choices.MODELS, choices.FILTERS, choices.FOREGROUNDS
+_LAYOUTS = choices.KEYPOINT_LAYOUTS
 
 
 def _add_tracking_commands(sub) -> None:
@@ -426,24 +488,53 @@ def _add_tracking_commands(sub) -> None:
         "track",
         help="track a person in a sequence folder or synchronised videos",
         description="Track a sequence folder (synthesis format) or synchronised videos with their calibration; "
-        "writes poses.npz, poses.csv, diagnostics.json and track.bvh to --out after every frame.",
+        "writes poses.npz, poses.csv and diagnostics.json to --out after every frame, and at the end the exported "
+        "track (smoothed, gaps filled): poses_smoothed.npz, track.bvh, poses.trc (OpenSim / Pose2Sim), poses.c3d "
+        "and plots/.",
     )
     tr.add_argument(
-        "input", nargs="?", help="sequence folder or PARSEC bodytrack sequence folder (or use --videos)"
+        "input",
+        nargs="?",
+        help="sequence folder, Pose2Sim project folder (Config.toml, calibration/, videos/, pose/) or PARSEC "
+        "bodytrack sequence folder (or use --videos)",
     )
-    tr.add_argument("--out", required=True, help="output folder")
+    tr.add_argument(
+        "--config",
+        metavar="FILE",
+        help="TOML file of options and inputs (any option below by its long name with _ for -, e.g. "
+        'particles = 300, videos = ["a.mp4", "b.mp4"]); options given here override it; the effective '
+        "configuration is written to --out as config.toml",
+    )
+    tr.add_argument("--out", help="output folder")
     tr.add_argument("--videos", nargs="+", metavar="V", help="one synchronised video per camera")
     tr.add_argument(
-        "--calibration", help="calibration of the videos (any format `jaxmocap calib show` reads)"
+        "--calibration",
+        help="calibration of the videos (any format `jaxmocap calib show` reads, EasyMocap's intri.yml/extri.yml "
+        "folder included)",
     )
     tr.add_argument(
-        "--keypoints", nargs="+", metavar="DIR", help="OpenPose JSON folder per camera (with --videos)"
+        "--keypoints",
+        nargs="+",
+        metavar="DIR",
+        help="2D keypoint JSON folder per camera (with --videos; OpenPose format, files matched to frames by the "
+        "number in their names)",
+    )
+    tr.add_argument(
+        "--keypoint-layout",
+        choices=("auto", *_LAYOUTS),
+        help="layout of the keypoint files (default auto: from the number of keypoints and where they lie)",
+    )
+    tr.add_argument(
+        "--calibration-units",
+        choices=("auto", "m", "mm"),
+        help="units of the calibration's translations (default auto: millimetres when the cameras are too far "
+        "apart for metres)",
     )
     tr.add_argument(
         "--depth", nargs="+", metavar="DIR", help="depth-map folder per camera: .npy metres or 16-bit PNG mm"
     )
     tr.add_argument("--model", choices=_MODELS, help="body model (default: the body file's, else full25)")
-    tr.add_argument("--filter", choices=_FILTERS, default="apf", help="particle filter (default apf)")
+    tr.add_argument("--filter", choices=_FILTERS, help="particle filter (default apf)")
     tr.add_argument(
         "--particles",
         type=_particle_counts,
@@ -454,38 +545,85 @@ def _add_tracking_commands(sub) -> None:
     tr.add_argument(
         "--cues", help="comma-separated cues with optional weights, e.g. foreground,edge_distance:2,coverage"
     )
-    tr.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    tr.add_argument("--frames", help="frame range A:B (default: all)")
+    tr.add_argument("--seed", type=int, help="random seed (default 0)")
+    tr.add_argument("--frames", help="frame range A:B (default: all, or a Pose2Sim project's frame_range)")
     tr.add_argument(
         "--init",
-        default="auto",
         help="groundtruth, ik or a FILE (.npz with 'state', .npy, text); default: groundtruth if the input has it, else ik",
     )
-    tr.add_argument("--body", help="body file (TOML) with the subject's dimensions")
+    tr.add_argument(
+        "--body",
+        help="body file (TOML) with the subject's dimensions, or 'detections' (measured from the 2D keypoints; "
+        "the default for an input with keypoints and no body file)",
+    )
     tr.add_argument(
         "--foreground",
         choices=_FOREGROUNDS,
-        default="auto",
         help="foreground source (default: masks of a sequence, else a median background)",
     )
     tr.add_argument(
-        "--downsample", type=int, choices=(1, 2, 4), default=1, help="process images at 1/1, 1/2 or 1/4 size"
+        "--downsample", type=int, choices=(1, 2, 4), help="process images at 1/1, 1/2 or 1/4 size"
     )
     tr.add_argument(
         "--on-bad-frame",
         choices=("skip", "stop"),
-        default="skip",
         help="a frame that does not decode: skip it with a warning (default) or stop",
     )
     tr.add_argument(
         "--overlay",
         action="store_true",
-        help="also write an MP4 per view with the model drawn over the images",
+        default=None,
+        help="also write an H.264 MP4 per view with the model drawn over the images, and a montage PNG",
     )
-    tr.add_argument("--resume", action="store_true", help="continue an interrupted run in --out")
-    tr.add_argument("--overwrite", action="store_true", help="replace a previous run in --out")
-    tr.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    tr.add_argument(
+        "--smooth",
+        type=_smooth_spec,
+        default=None,
+        metavar="butterworth[:HZ]|none",
+        help="smoothing of the exported track (poses_smoothed.npz, track.bvh, poses.trc, poses.c3d): zero-phase "
+        f"Butterworth low-pass, order 4, cut-off HZ (default {DEFAULT_CUTOFF_HZ:g}), or none; lost and "
+        "skipped frames are interpolated either way; poses.npz keeps the raw estimates",
+    )
+    tr.add_argument(
+        "--bvh-units", choices=("cm", "m"), default=None, help="length unit of track.bvh (default cm)"
+    )
+    for flag, kind, what in (
+        (
+            "--velocity",
+            float,
+            "damping of the constant-velocity prediction of the root (default 0.5; 0 = none)",
+        ),
+        ("--diffusion-scale", float, "factor on the per-DOF diffusion (default 1)"),
+        ("--survival-target", float, "annealing survival rate alpha (default 0.5)"),
+        ("--samples", int, "silhouette samples per view of the coverage cue (default 128)"),
+        (
+            "--loss-ratio",
+            float,
+            "track lost when the best energy exceeds this times its reference (default 2.5)",
+        ),
+        ("--loss-frames", int, "... for this many frames in a row (default 3)"),
+        ("--loss-window", int, "frames after the initialisation that set the reference energy (default 5)"),
+        ("--reinit-widen", float, "spread of a re-initialisation, times the diffusion (default 3)"),
+    ):
+        tr.add_argument(flag, type=kind, help=what)
+    tr.add_argument("--fsync", action="store_true", default=None, help="fsync every output rewrite")
+    tr.add_argument(
+        "--resume", action="store_true", default=None, help="continue an interrupted run in --out"
+    )
+    tr.add_argument("--overwrite", action="store_true", default=None, help="replace a previous run in --out")
+    tr.add_argument("--quiet", action="store_true", default=None, help="no progress bar, notes or summary")
     tr.set_defaults(func=_track)
+
+    pl = sub.add_parser(
+        "plot",
+        help="draw a tracking run: joint trajectories, 3D skeleton, per-frame quality (PNG)",
+        description="Draw the joint trajectories, a 3D skeleton of selected frames and the per-frame quality "
+        "(log-likelihood, survival, lost frames, re-initialisations) of a tracking output folder as PNG "
+        "files (also drawn at the end of every run).",
+    )
+    pl.add_argument("run", help="tracking output folder")
+    pl.add_argument("--out", help="folder of the pictures (default RUN/plots)")
+    pl.set_defaults(func=_plot)
 
     ev = sub.add_parser(
         "eval",
@@ -547,15 +685,25 @@ def build_parser() -> argparse.ArgumentParser:
         description="Render a synthetic multi-view sequence (RGB, mask, part labels, virtual depth, calibration, "
         "ground truth, body file) of a motion-capture clip; see README 'Sequence folder format'.",
     )
-    syn.add_argument("--motion", required=True, help="a .bvh or .amc clip, or 'demo' (the bundled CMU walk)")
+    syn.add_argument(
+        "--motion",
+        required=True,
+        help="a .bvh or .amc clip of any skeleton, or 'demo' (the bundled CMU walk)",
+    )
     syn.add_argument("--asf", help="ASF skeleton of an .amc clip (default: SS.asf next to SS_TT.amc)")
-    syn.add_argument("--scale", type=float, help="metres per file unit (BVH default: the CMU conversion's)")
+    syn.add_argument(
+        "--mapping", help="TOML file naming file joints for evaluation joints (default: by names, then shape)"
+    )
+    syn.add_argument("--scale", type=float, help="metres per file unit (BVH default: detected from the legs)")
+    syn.add_argument("--up-axis", choices=("y", "z"), help="the file's up axis (BVH default: detected)")
     syn.add_argument("--rig", default="stereo", help="stereo, frontal-lateral, ring4 or a calibration file")
     syn.add_argument("--frames", help="source frame range A:B (default: the whole clip)")
     syn.add_argument("--fps", type=float, default=30.0, help="output frame rate (default 30; subsamples)")
     syn.add_argument("--size", help="image size WxH (default 640x480, or the calibration's)")
     syn.add_argument("--seed", type=int, default=0, help="seed of every random number (default 0)")
-    syn.add_argument("--background", default="photo", help="photo, plain or an image file (default photo)")
+    syn.add_argument(
+        "--background", default="photo", help="photo, plain, an image file, or room (a 3D room with shadows)"
+    )
     syn.add_argument("--clutter", default="none", help="procedural clutter: none, low, medium, high or 0-1")
     syn.add_argument(
         "--noise", type=float, default=0.01, help="RGB noise sigma, 1 = full scale (default 0.01)"
@@ -564,6 +712,9 @@ def build_parser() -> argparse.ArgumentParser:
     syn.add_argument("--depth-smooth", type=float, default=1.5, help="depth smoothing in px (default 1.5)")
     syn.add_argument("--illumination", type=float, default=0.0, help="illumination change amplitude 0-1")
     syn.add_argument("--blur", type=int, default=1, help="motion blur: source frames averaged (default 1)")
+    syn.add_argument(
+        "--clothing", default="plain", choices=("plain", "textured"), help="clothing texture (default plain)"
+    )
     syn.add_argument("--licence", help="licence line of the clip for meta.json (default: the CMU terms)")
     syn.add_argument("--overwrite", action="store_true", help="replace an existing sequence in --out")
     syn.add_argument("--quiet", action="store_true", help="no progress output")

@@ -118,7 +118,11 @@ TRACKING = ("accuracy", "end_to_end", "hybrid")
 
 
 def check_quick_run(name):
-    md = runner.BENCHMARKS[name].fn(True)
+    check_markdown(name, runner.BENCHMARKS[name].fn(True))
+
+
+def check_markdown(name, md):
+    """What a quick run's markdown must be: non-empty, no failure reported, the benchmark's expected text."""
     assert isinstance(md, str) and md.strip()
     assert "failed" not in md.lower()
     assert EXPECT[name] in md

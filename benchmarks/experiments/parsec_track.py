@@ -5,8 +5,10 @@ bodytrack is stochastic, so its output is one draw: the comparison reports, per 
 the 15 evaluation joints between our estimate and ``reference/poses_<N>p<L>l.txt`` for each seed, next to the
 spread of our estimates (mean joint distance between the estimates of two seeds, over all seed pairs). Speed: the
 median wall time of a filter step (all layers) per frame after compilation, plus the per-frame preprocessing (edge
-maps), against bodytrack's serial 0.28 s/frame (4000 × 5) and 0.062 s/frame (1000 × 3) on a 2-core machine
-(FORMAT.md). Initialisation as bodytrack's: particles ``InitialPose + N(0, σ_0)`` weighted against frame 0 with
+maps), against bodytrack's serial build run in the same script after each seed (``benchmarks/bodytrack.py``: built
+from source into ``build/bodytrack``; its per-frame time from its "Processing frame" lines, median over seeds and
+frames; the 1-minute load average recorded). ``benchmarks/perf/vs_bodytrack.py`` is the interleaved A/B
+comparison, idle and loaded. Initialisation as bodytrack's: particles ``InitialPose + N(0, σ_0)`` weighted against frame 0 with
 its β. Usage::
 
     JAX_PLATFORMS=cpu .venv/bin/python benchmarks/experiments/parsec_track.py [--seeds 3] [--report]
@@ -27,6 +29,7 @@ import sys
 import time
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmarks/: the shared modules
+import bodytrack
 import common
 import cv2
 import jax
@@ -42,7 +45,6 @@ from jaxmocap.parsec.annealing import parsec_apf
 DATA = pathlib.Path(os.environ.get("JAXMOCAP_DATA", "/work/shared/data")) / "parsec"
 
 CONFIGS = ((4000, 5), (1000, 3))
-BODYTRACK_S = {(4000, 5): 0.284, (1000, 3): 0.062}
 
 
 def make_runner(seq, num_particles: int, num_layers: int):
@@ -151,15 +153,18 @@ def main(argv=None) -> int:
     prep = (time.perf_counter() - t0) / len(obs)
     model = parsec.parsec31(seq.shape)  # millimetres
     lines = []
+    bodytrack.build()
     for N, L in CONFIGS:
         ref = parsec.load_poses(DATA / "reference" / f"poses_{N}p{L}l.txt")
         J_ref = joints_mm(model, ref)
-        runs, times = [], []
+        runs, times, bt_times, loads = [], [], [], []
         run = make_runner(seq, N, L)
         for s in range(a.seeds):
+            loads.append(os.getloadavg()[0])
             est, secs = run(obs, s)
             runs.append(joints_mm(model, est))
             times += secs if s > 0 else secs[1:]  # the first call compiles
+            bt_times += bodytrack.bodytrack_frames(N, L)
         J = np.stack(runs)  # (S, F, 15, 3)
         d_ref = np.linalg.norm(J - J_ref[None], axis=-1).mean(axis=-1)  # (S, F)
         pairs = list(itertools.combinations(range(len(J)), 2))
@@ -176,7 +181,10 @@ def main(argv=None) -> int:
             )
             lines.append(line)
             print(line, flush=True)
-        tline = f"| {N} × {L} | {step_s:.3f} | {prep:.3f} | {step_s + prep:.3f} | {BODYTRACK_S[(N, L)]:.3f} |"
+        tline = (
+            f"| {N} × {L} | {step_s:.3f} | {prep:.3f} | {step_s + prep:.3f} | {np.median(bt_times):.3f} | "
+            f"{min(loads):.1f}–{max(loads):.1f} |"
+        )
         print(tline, flush=True)
         lines.append(("time", tline))
     if a.report:
@@ -192,9 +200,8 @@ def main(argv=None) -> int:
             "| config | frame | to bodytrack's pose: mean (min–max over seeds) | our spread (between seeds) |\n"
             "|---|---|---|---|\n" + "\n".join(acc) + "\n\n"
             f"## Time per frame ({dev.platform}, after compilation; median over seeds and frames 1+)\n\n"
-            "| config | filter step s | edge/fg maps s | total s | bodytrack serial s |\n|---|---|---|---|---|\n"
-            + "\n".join(tim)
-            + "\n"
+            "| config | filter step s | edge/fg maps s | total s | bodytrack serial s (same script) | load |\n"
+            "|---|---|---|---|---|---|\n" + "\n".join(tim) + "\n"
         )
         common.write_result(common.RESULTS / "parsec_track.md", text, cmd)
     return 0

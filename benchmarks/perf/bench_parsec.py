@@ -5,12 +5,19 @@ around sequenceB_2's initial pose with PoseParameters' standard deviations, 4 ca
 minimum wall time of ``--repeats`` runs after compilation, the process CPU time, and the same for a NumPy
 implementation of the same likelihood (vectorised over particles, float32 like the C++;
 :func:`reference.numpy_baselines.np_loglik`) run in the same process.
-bodytrack's serial C++ takes about 13 µs per particle and layer on a 2-core machine like the CI machine
-(``jaxmocap/parsec/FORMAT.md``, including its noise and resampling).
 
-    .venv/bin/python benchmarks/perf/bench_parsec.py [--particles 4000] [--repeats 9] [--devices 2]
+Then bodytrack's own likelihood, built from source by this script (``benchmarks/bodytrack.py``: ``make -C
+$BODYTRACK_SRC OUT=build/bodytrack``) and timed by its ``ll_bench`` (``TrackingModel::LogLikelihood`` on the same
+number of states drawn the same way, frame 0), side by side with the JAX likelihood: ``--bodytrack-rounds``
+interleaved A/B rounds, each as found and with one busy-loop process started by the script, the load average of
+each round, the ratio per round and its median (``0`` skips it). ``benchmarks/perf/vs_bodytrack.py`` does the same
+for the whole tracker.
+
+    .venv/bin/python benchmarks/perf/bench_parsec.py [--particles 4000] [--repeats 9] [--devices 2] [--bodytrack-rounds 5]
 
 ``--devices 2`` splits the particles over two XLA host devices (one per core) with ``shard_map``.
+``--pool-threads 1`` starts XLA's CPU backend with one intra-op thread instead of one per core (XLA sizes the pool
+from the process's affinity mask: the mask is narrowed while the backend starts and restored after).
 """
 
 from __future__ import annotations
@@ -22,10 +29,10 @@ import sys
 import time
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmarks/: the shared modules
+import bodytrack
 import common
 
 DATA = common.ROOT / "tests" / "data" / "parsec"
-BODYTRACK_US = 13.0
 
 
 def _args(argv=None):
@@ -34,6 +41,19 @@ def _args(argv=None):
     ap.add_argument("--repeats", type=int, default=9)
     ap.add_argument("--numpy-repeats", type=int, default=3)
     ap.add_argument("--devices", type=int, default=1, help="XLA host devices to split the particles over")
+    ap.add_argument(
+        "--pool-threads",
+        type=int,
+        default=0,
+        help="start XLA's CPU backend with this many intra-op threads (its pool is sized from the affinity mask, "
+        "narrowed for the backend's start only; 0: one per core, XLA's default)",
+    )
+    ap.add_argument(
+        "--bodytrack-rounds",
+        type=int,
+        default=5,
+        help="side-by-side rounds with bodytrack's ll_bench (0: none)",
+    )
     return ap.parse_args(argv)
 
 
@@ -50,6 +70,12 @@ import numpy as np  # noqa: E402
 from reference.numpy_baselines import np_loglik  # noqa: E402
 
 from jaxmocap import parsec  # noqa: E402
+
+if ARGS is not None and ARGS.pool_threads > 0:  # XLA sizes its intra-op pool from the affinity mask at start
+    _allowed = os.sched_getaffinity(0)
+    os.sched_setaffinity(0, set(sorted(_allowed)[: ARGS.pool_threads]))
+    jax.devices()
+    os.sched_setaffinity(0, _allowed)
 from jaxmocap.parsec import likelihood as pl  # noqa: E402
 
 
@@ -102,8 +128,13 @@ def main(args):
 
     us = lambda s: s / N * 1e6
     print(f"PARSEC likelihood, {N} particles x 4 views (640x480), frame 0 of sequenceB_2")
+    pool = sum(
+        pathlib.Path(f"/proc/self/task/{t}/comm").read_text().strip() == "tf_XLAEigen"
+        for t in (os.listdir("/proc/self/task") if os.path.isdir("/proc/self/task") else [])
+    )
     print(
-        f"  devices: {jax.devices()[: args.devices]}, cores visible: {os.cpu_count()}, load average: {os.getloadavg()}"
+        f"  devices: {jax.devices()[: args.devices]}, cores visible: {os.cpu_count()}, XLA intra-op threads: {pool}, "
+        f"load average: {os.getloadavg()}"
     )
     print(f"  JAX    compile+first run {compile_s:.1f} s")
     print(
@@ -113,15 +144,26 @@ def main(args):
         f"  NumPy  µs/particle/layer: median {us(nmed):.2f}  min {us(nbest):.2f}  (process CPU {us(ncpu):.2f})"
     )
     print(f"  speed-up JAX vs NumPy (median): {nmed / med:.1f}x")
-    print(
-        f"  vs bodytrack serial C++ ≈ {BODYTRACK_US:.0f} µs: {BODYTRACK_US / us(med):.2f}x (median), {BODYTRACK_US / us(best):.2f}x (min)"
-    )
     ok = (ll > -1e9) & (ll_np > -1e9)
     print(
         f"  agreement: valid flags equal {np.mean((ll > -1e9) == (ll_np > -1e9)):.4f}, "
         f"max |Δ loglik| {np.abs(ll[ok] - ll_np[ok]).max():.2e}, "
         f"exactly equal {np.mean(ll[ok] == ll_np[ok].astype(np.float32)):.3f}"
     )
+    if args.bodytrack_rounds > 0:
+        bodytrack.build()
+        reps = 5
+        jobs = {
+            "likelihood µs/particle": (
+                lambda: bodytrack.bodytrack_likelihood(N, reps)["us_median"],
+                lambda: us(common.median_seconds(lambda: f(Xj, obs).block_until_ready(), reps)),
+            )
+        }
+        rows = bodytrack.side_by_side(jobs, args.bodytrack_rounds, log=lambda s: None)
+        print(
+            f"\nbodytrack serial C++ (ll_bench, median of {reps}) vs JAX (median of {reps}), side by side:\n"
+        )
+        print(bodytrack.table(rows))
 
 
 if __name__ == "__main__":

@@ -5,7 +5,7 @@ of the model's flesh seen from that camera — the two silhouette generators of 
 (:func:`jaxmocap.geometry.flesh.cone_contours`) joined into a closed outline, and the contour of each ellipsoid
 (:func:`jaxmocap.geometry.flesh.ellipsoid_contours`) — and the evaluation joints, projected with the calibration's lens
 model (:func:`jaxmocap.geometry.camera.project`). :func:`draw_overlay` draws them with ``cv2.polylines`` / ``cv2.circle``;
-:class:`OverlayVideo` writes one MP4 per view (``cv2.VideoWriter`` with the ``mp4v`` codec).
+:class:`OverlayVideo` writes one H.264 MP4 per view (PyAV) and a montage PNG.
 
 Plots (:func:`plot_error_over_time`, :func:`plot_per_joint`) take a report of :func:`jaxmocap.eval.metrics.evaluate`
 and use matplotlib's object API with the Agg canvas (no display, no global pyplot state).
@@ -13,6 +13,7 @@ and use matplotlib's object API with the Agg canvas (no display, no global pyplo
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 import pathlib
@@ -202,34 +203,142 @@ def person_crops(
 
 
 class OverlayVideo:
-    """One MP4 per view (``overlay_<view>.mp4`` in ``out``), ``mp4v`` codec; :meth:`write` adds a frame of every
-    view. Raises ``OSError`` when OpenCV cannot open a writer."""
+    """One H.264 MP4 per view (``overlay_<view>.mp4`` in ``out``) that browsers, VS Code and Jupyter play, and a
+    montage PNG (``overlay_montage.png``) of evenly spaced frames; :meth:`write` adds a frame of every view.
+
+    Encoding (PyAV, FFmpeg's ``libx264``): ``yuv420p`` (odd image sizes padded by one edge pixel), CRF 20, the
+    frame rate as a fraction, ``movflags=+faststart`` (the index at the front, so a browser starts playing before
+    the download ends). Each video is written to a temporary file in ``out`` and moved into place on
+    :meth:`close` (a killed run leaves no torn MP4).
+
+    Montage: with ``montage`` frames asked for, a thumbnail of every ``stride``-th frame is kept (the stride
+    doubles whenever more than ``2 · montage`` are kept) and :meth:`close` writes ``montage`` of them, evenly
+    spaced: one row per view, one column per frame, each a :func:`person_crops` crop (around the ``joints`` given
+    to :meth:`write`, or the whole image) ``montage_height`` pixels high, labelled with the frame number.
+    """
 
     def __init__(
-        self, out: str | os.PathLike, view_names: Sequence[str], sizes: Sequence[tuple[int, int]], fps: float
+        self,
+        out: str | os.PathLike,
+        view_names: Sequence[str],
+        sizes: Sequence[tuple[int, int]],
+        fps: float,
+        rig: camera.Rig | None = None,
+        montage: int = 6,
+        montage_height: int = 240,
     ):
-        self.paths = [pathlib.Path(out) / f"overlay_{name}.mp4" for name in view_names]
-        fourcc = cv2.VideoWriter_fourcc(*"mp4v")
-        self.writers = []
-        for p, (w, h) in zip(self.paths, sizes, strict=True):
-            wr = cv2.VideoWriter(os.fspath(p), fourcc, float(fps), (int(w), int(h)))
-            if not wr.isOpened():
-                raise OSError(f"cannot open an MP4 writer for {p}")
-            self.writers.append(wr)
+        import fractions
 
-    def write(self, images: Sequence[np.ndarray]) -> None:
-        for wr, im in zip(self.writers, images, strict=True):
-            wr.write(np.ascontiguousarray(im))
+        import av
+
+        self.out = pathlib.Path(out)
+        self.paths = [self.out / f"overlay_{name}.mp4" for name in view_names]
+        self.montage_path = self.out / "overlay_montage.png"
+        self.rig, self.montage, self.montage_height = rig, int(montage), int(montage_height)
+        self._thumbs: list[tuple[int, int, list[np.ndarray]]] = []  # (count, label, crops)
+        self._stride, self._count = 1, 0
+        rate = fractions.Fraction(float(fps)).limit_denominator(1001)
+        self._tmp, self._containers, self._streams = [], [], []
+        try:
+            for p, (w, h) in zip(self.paths, sizes, strict=True):
+                tmp = self.out / f".{p.name}.tmp"
+                c = av.open(os.fspath(tmp), mode="w", format="mp4", options={"movflags": "+faststart"})
+                self._tmp.append(tmp)
+                self._containers.append(c)
+                st = c.add_stream("libx264", rate=rate)
+                st.width, st.height = int(w) + int(w) % 2, int(h) + int(h) % 2
+                st.pix_fmt = "yuv420p"
+                st.options = {"crf": "20", "preset": "medium"}
+                self._streams.append(st)
+        except BaseException:
+            self._abort()
+            raise
+
+    def write(
+        self, images: Sequence[np.ndarray], joints: np.ndarray | None = None, frame: int | None = None
+    ) -> None:
+        """Add one frame: BGR ``uint8`` images of every view; ``joints (J, 3)`` metres (NaN rows ignored) for the
+        montage crops; ``frame`` its number on the montage (default: the count of frames written before)."""
+        import av
+
+        for c, st, im in zip(self._containers, self._streams, images, strict=True):
+            im = np.ascontiguousarray(im)
+            pad_h, pad_w = st.height - im.shape[0], st.width - im.shape[1]
+            if pad_h or pad_w:
+                im = cv2.copyMakeBorder(im, 0, pad_h, 0, pad_w, cv2.BORDER_REPLICATE)
+            for packet in st.encode(av.VideoFrame.from_ndarray(im, format="bgr24")):
+                c.mux(packet)
+        if self.montage > 0 and self._count % self._stride == 0:
+            label = self._count if frame is None else int(frame)
+            self._thumbs.append((self._count, label, self._thumbnails(images, joints)))
+            if len(self._thumbs) > 2 * self.montage:
+                self._stride *= 2
+                self._thumbs = [t for t in self._thumbs if t[0] % self._stride == 0]
+        self._count += 1
+
+    def _thumbnails(self, images, joints) -> list[np.ndarray]:
+        if joints is not None and self.rig is not None and np.any(np.all(np.isfinite(joints), axis=-1)):
+            return person_crops(images, self.rig, joints, self.montage_height)
+        h = self.montage_height
+        return [cv2.resize(im, (max(1, round(im.shape[1] * h / im.shape[0])), h), interpolation=cv2.INTER_AREA)
+                for im in images]  # fmt: skip
+
+    def _write_montage(self) -> None:
+        from jaxmocap.io.export import atomic_write_bytes
+
+        if not self._thumbs:
+            return
+        pick = np.unique(np.linspace(0, len(self._thumbs) - 1, min(self.montage, len(self._thumbs))).round())
+        chosen = [self._thumbs[int(k)] for k in pick]
+        rows = []
+        for v in range(len(chosen[0][2])):
+            cells = []
+            for _, frame, crops in chosen:
+                cell = crops[v].copy()
+                cv2.putText(cell, f"{frame}", (6, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 2,
+                            cv2.LINE_AA)  # fmt: skip
+                cells.append(cell)
+            rows.append(np.concatenate(cells, axis=1))
+        width = max(r.shape[1] for r in rows)
+        rows = [cv2.copyMakeBorder(r, 0, 0, 0, width - r.shape[1], cv2.BORDER_CONSTANT) for r in rows]
+        ok, png = cv2.imencode(".png", np.concatenate(rows, axis=0), [cv2.IMWRITE_PNG_COMPRESSION, 9])
+        if ok:
+            atomic_write_bytes(self.montage_path, png.tobytes())
+
+    def _abort(self) -> None:
+        for c in self._containers:
+            with contextlib.suppress(Exception):
+                c.close()
+        for tmp in self._tmp:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+        self._containers = []
 
     def close(self) -> None:
-        for wr in self.writers:
-            wr.release()
+        """Flush the encoders, move the videos into place and write the montage."""
+        if not self._containers:
+            return
+        try:
+            for c, st in zip(self._containers, self._streams, strict=True):
+                for packet in st.encode():
+                    c.mux(packet)
+                c.close()
+            for tmp, p in zip(self._tmp, self.paths, strict=True):
+                os.replace(tmp, p)
+        except BaseException:
+            self._abort()
+            raise
+        self._containers = []
+        self._write_montage()
 
     def __enter__(self):
         return self
 
-    def __exit__(self, *exc):
-        self.close()
+    def __exit__(self, exc_type, *exc):
+        if exc_type is None:
+            self.close()
+        else:
+            self._abort()
 
 
 # ---------------------------------------------------------------------------------------------------------------

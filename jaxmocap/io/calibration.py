@@ -2,11 +2,14 @@
 float64.
 
 Readers: OpenCV ``FileStorage`` YAML/XML (:func:`load_opencv_storage`), Pose2Sim TOML (:func:`load_pose2sim_toml`),
-caliscope TOML (:func:`load_caliscope_toml`) and Qualisys ``.qca.txt`` (:func:`load_qualisys_qca`);
+caliscope TOML (:func:`load_caliscope_toml`), Qualisys ``.qca.txt`` (:func:`load_qualisys_qca`) and EasyMocap's
+``intri.yml``/``extri.yml`` (:func:`load_easymocap`);
 :func:`load_calibration` detects the format, after asking the readers that wings register with
 :func:`register_reader` (PARSEC / Bouguet ``.cal`` cameras come with the PARSEC wing). Every reader raises
 :class:`jaxmocap.errors.MocapInputError` (file and line) for anything truncated or malformed; :func:`read_text`,
 :func:`checked_camera` and :func:`rig_from_cameras` are the shared checks a registered reader uses too.
+
+Units: :func:`check_units` converts a rig in millimetres to metres (or refuses one in unknown units).
 
 Writer: :func:`save_calibration` writes the Pose2Sim-layout TOML that Pose2Sim and ``cv2.projectPoints`` users read
 directly.
@@ -14,6 +17,7 @@ directly.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import re
@@ -29,9 +33,11 @@ from jaxmocap.errors import MocapInputError
 from jaxmocap.geometry.camera import Rig, _normalise_dist, rodrigues
 
 __all__ = [
+    "check_units",
     "checked_camera",
     "load_calibration",
     "load_caliscope_toml",
+    "load_easymocap",
     "load_opencv_storage",
     "load_pose2sim_toml",
     "load_qualisys_qca",
@@ -278,6 +284,127 @@ def _sibling_extrinsics(path) -> str | None:
 
 
 # ---------------------------------------------------------------------------------------------------------------
+# EasyMocap intri.yml / extri.yml
+
+EASYMOCAP_FILES = ("intri.yml", "extri.yml")
+
+
+def _easymocap_pair(path) -> tuple[str, str] | None:
+    """``(intri.yml, extri.yml)`` of a folder holding both, or of either file (the other one beside it)."""
+    p = os.fspath(path)
+    folder = p if os.path.isdir(p) else os.path.dirname(p)
+    if not os.path.isdir(p) and os.path.basename(p).lower() not in EASYMOCAP_FILES:
+        return None
+    pair = tuple(os.path.join(folder, n) for n in EASYMOCAP_FILES)
+    if os.path.isdir(p) and not all(os.path.isfile(f) for f in pair):
+        return None
+    return pair
+
+
+def _fs_names(fs, path, text) -> list[str]:
+    node = fs.getNode("names")
+    if node.empty() or node.isNone() or not node.isSeq() or node.size() == 0:
+        raise MocapInputError(path, "no 'names' list of cameras: not an EasyMocap camera file")
+    out = []
+    for i in range(node.size()):
+        item = node.at(i)
+        out.append(item.string() if item.isString() else str(int(item.real())))
+    return out
+
+
+def load_easymocap(path: str | os.PathLike) -> Rig:
+    """EasyMocap's cameras: ``intri.yml`` and ``extri.yml`` (OpenCV FileStorage YAML), given as their folder or as
+    either file (the other beside it).
+
+    ``intri.yml``: ``names`` (the cameras), and per camera ``K_<name>`` (3×3), ``dist_<name>`` (1×5; ``D_<name>``
+    in some versions) and optionally ``H_<name>``, ``W_<name>`` (image size). ``extri.yml``: ``Rot_<name>``
+    (3×3 world→camera) or ``R_<name>`` (its Rodrigues vector) and ``T_<name>`` (3×1, metres: EasyMocap's unit),
+    ``x_cam = R x_world + T``. The cameras are those of ``intri.yml``'s ``names``, in that order.
+    """
+    pair = _easymocap_pair(path)
+    if pair is None:
+        raise MocapInputError(path, "not an EasyMocap folder (intri.yml and extri.yml)")
+    intri_path, extri_path = pair
+    texts = [read_text(f) for f in pair]
+    fss = [_open_storage(f, t) for f, t in zip(pair, texts, strict=True)]
+    try:
+        (fi, fe), (ti, te) = fss, texts
+        try:
+            names = _fs_names(fi, intri_path, ti)
+        except (cv2.error, *_CV_EXCEPTIONS) as e:
+            if isinstance(e, MocapInputError):
+                raise
+            raise MocapInputError(intri_path, f"cannot read 'names': {_cv_message(e)[0]}") from None
+        cams = []
+        for n in names:
+            K = _fs_mat(fi, intri_path, ti, f"K_{n}")
+            D = _fs_mat(fi, intri_path, ti, f"dist_{n}", optional=True)
+            if D is None:
+                D = _fs_mat(fi, intri_path, ti, f"D_{n}", optional=True)
+            D = np.zeros(5) if D is None else D.reshape(-1)
+            h = _fs_real(fi, intri_path, ti, f"H_{n}")
+            w = _fs_real(fi, intri_path, ti, f"W_{n}")
+            R = _fs_mat(fe, extri_path, te, f"Rot_{n}", optional=True)
+            if R is None:
+                rv = _fs_mat(fe, extri_path, te, f"R_{n}")
+                R = rodrigues(
+                    _as_array(
+                        rv.reshape(-1), lambda s: s == (3,), f"R_{n}", extri_path, _line_of(te, f"R_{n}")
+                    )
+                )
+            T = _fs_mat(fe, extri_path, te, f"T_{n}").reshape(-1)
+            size = (0, 0) if h is None or w is None or h < 0 or w < 0 else (w, h)
+            cams.append(checked_camera(intri_path, _line_of(ti, f"K_{re.escape(n)}"), n, K, D, R, T, size))
+        return rig_from_cameras(cams, names, intri_path)
+    finally:
+        for f in fss:
+            f.release()
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Units
+
+
+#: the smallest a standing person (1.8 m) may appear in every view of a rig for tracking (px)
+MIN_PERSON_PX = 100.0
+
+
+def check_units(rig: Rig, units: str = "auto", path=None) -> tuple[Rig, str | None]:
+    """``(rig in metres, note or None)``: translations converted or checked.
+
+    ``units``: ``"m"`` (as stored), ``"mm"`` (divided by 1000) or ``"auto"``: two cameras ``d`` apart can both see a
+    standing person (1.8 m) at least :data:`MIN_PERSON_PX` tall only when ``d ≤ 2 f · 1.8 / MIN_PERSON_PX`` (``f``
+    the median focal length, px); a rig whose cameras are farther apart is taken as in millimetres when that
+    holds after dividing by 1000 (a note says so), and refused otherwise. Rigs of one camera, or whose cameras
+    share a centre, are kept as they are."""
+    if units not in ("auto", "m", "mm"):
+        raise ValueError(f"calibration units must be auto, m or mm, not {units!r}")
+    if units == "mm":
+        return dataclasses.replace(rig, t=np.asarray(rig.t, np.float64) / 1000.0), None
+    if units == "m" or rig.num_views < 2:
+        return rig, None
+    R, t = np.asarray(rig.R, np.float64), np.asarray(rig.t, np.float64)
+    centres = -np.einsum("vji,vj->vi", R, t)
+    span = float(np.max(np.linalg.norm(centres[:, None] - centres[None], axis=-1)))
+    f = float(np.median(0.5 * (np.asarray(rig.K)[:, 0, 0] + np.asarray(rig.K)[:, 1, 1])))
+    limit = 2.0 * f * 1.8 / MIN_PERSON_PX
+    if span <= limit:
+        return rig, None
+    if span / 1000.0 <= limit:
+        note = (
+            f"the cameras are {span:.0f} m apart, too far to film one person (at most {limit:.0f} m with focal "
+            f"lengths of {f:.0f} px): translations taken as millimetres and divided by 1000 "
+            "(--calibration-units m keeps them)"
+        )
+        return dataclasses.replace(rig, t=t / 1000.0), note
+    raise MocapInputError(
+        path,
+        f"the cameras are {span:.3g} m apart, too far to film one person (at most {limit:.0f} m), even read as "
+        "millimetres: the translations are in unknown units",
+    )
+
+
+# ---------------------------------------------------------------------------------------------------------------
 # TOML: Pose2Sim / OpenCV layout and caliscope
 
 
@@ -481,11 +608,14 @@ def load_calibration(path: str | os.PathLike | Sequence[str | os.PathLike]) -> R
 
     * a format registered with :func:`register_reader` that accepts ``path`` (the PARSEC wing registers its
       Bouguet ``.cal`` cameras: a folder, a ``.cal`` file or a list of ``.cal`` files, converted to metres);
+    * EasyMocap's ``intri.yml`` + ``extri.yml`` (their folder, or either file): :func:`load_easymocap`;
     * ``.toml``: caliscope if it has ``[cameras.N]`` tables (:func:`load_caliscope_toml`), otherwise Pose2Sim
       (:func:`load_pose2sim_toml`);
     * XML whose root is ``<calibration>``: Qualisys QCA (:func:`load_qualisys_qca`);
     * other YAML/XML: OpenCV FileStorage (:func:`load_opencv_storage`).
     """
+    if isinstance(path, str | os.PathLike) and _easymocap_pair(path) is not None:
+        return load_easymocap(path)
     for reader in _READERS:
         if reader.accepts(path):
             return reader.load(path)

@@ -16,14 +16,8 @@ NaN for joints the model lacks), ``state (T, D)`` named by ``dof_names``, ``fram
 the input), ``time (T,)`` seconds, ``fps`` and ``model``. Reopening a folder with ``resume=True`` keeps the first
 ``keep`` frames (the ones a resume checkpoint covers) and rewrites the CSV and the journal to match.
 
-**BVH** (:func:`model_bvh`, :func:`save_model_bvh`): the hierarchy is the model's segment tree; a joint's
-``OFFSET`` is the segment's rest offset. Where a segment's DOFs are rotations about (±) coordinate axes of an
-un-rotated joint frame, with any translations first, **the DOFs themselves are the channels** (one channel per DOF,
-its value ±θ in degrees, or the offset component ± translation); otherwise (rotated rest frames, arbitrary axes)
-the segment gets position channels where it translates and ``Z Y X`` Euler channels of its local rotation. The
-evaluation joints that are not segment origins (wrists, ankles, head centre, …) are ``End Site`` s. Files are
-y-up in centimetres by default (Blender's importer default); :func:`bvh_eval_joints` reads the evaluation joints
-back from a :class:`~jaxmocap.io.mocap.Motion` loaded with :func:`jaxmocap.io.bvh.load_bvh`.
+**BVH**: :func:`save_model_bvh` (``track.bvh``), :func:`model_bvh` and :func:`bvh_eval_joints` are those of
+:mod:`jaxmocap.io.body_bvh` (the layout Blender and the common BVH loaders read).
 """
 
 from __future__ import annotations
@@ -39,14 +33,12 @@ import time
 from collections.abc import Mapping, Sequence
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from jaxmocap.errors import MocapInputError
 from jaxmocap.geometry import body as body_mod
-from jaxmocap.io import bvh
 from jaxmocap.io import sequence as seqio
-from jaxmocap.io.mocap import Motion, matrix_to_euler, up_axis_matrix
+from jaxmocap.io.body_bvh import bvh_eval_joints, model_bvh, save_model_bvh
 
 __all__ = [
     "POSES_NPZ",
@@ -335,190 +327,3 @@ def _jsonable(x):
     if isinstance(x, pathlib.PurePath):
         return os.fspath(x)
     return x
-
-
-# ---------------------------------------------------------------------------------------------------------------
-# BVH of a body model's motion
-
-_AXES = "XYZ"
-
-
-def _signed_axis(v: np.ndarray, tol: float = 1e-9) -> tuple[int, float] | None:
-    """``(k, ±1)`` when ``v`` is ``±e_k``, else None."""
-    k = int(np.argmax(np.abs(v)))
-    s = float(np.sign(v[k]))
-    e = np.zeros(3)
-    e[k] = s
-    return (k, s) if np.allclose(v, e, atol=tol) else None
-
-
-def _segment_plan(model: body_mod.BodyModel, s: int, A: np.ndarray) -> tuple | None:
-    """For segment ``s``: ``[(dof index, 'pos'|'rot', file axis, sign), ...]`` when its DOFs can be the channels
-    (module docstring), else None."""
-    topo = model.topology
-    if not np.allclose(np.asarray(model.rest_rotation[s]), np.eye(3), atol=1e-9):
-        return None
-    plan, seen_rot, pos_axes = [], False, set()
-    for d in topo.segment_dofs[s]:
-        axis = np.asarray(model.dof_axis[d], np.float64)
-        sa = _signed_axis(A.T @ axis)  # the DOF axis in the file's frame
-        if sa is None:
-            return None
-        kind = topo.dof_kinds[d]
-        if kind == "P":
-            if seen_rot or sa[0] in pos_axes:
-                return None
-            pos_axes.add(sa[0])
-            plan.append((d, "pos", sa[0], sa[1]))
-        else:
-            seen_rot = True
-            plan.append((d, "rot", sa[0], sa[1]))
-    return tuple(plan)
-
-
-def _children(parents: Sequence[int]) -> list[list[int]]:
-    out: list[list[int]] = [[] for _ in parents]
-    for j, p in enumerate(parents):
-        if p >= 0:
-            out[p].append(j)
-    return out
-
-
-def model_bvh(
-    model: body_mod.BodyModel,
-    states: np.ndarray,
-    fps: float,
-    *,
-    scale: float = 0.01,
-    up_axis: str = "y",
-    leaf_tips: bool = True,
-) -> bvh.BvhData:
-    """The BVH content of a state sequence ``states (T, D)`` of ``model`` (metres, radians, z up).
-
-    Args:
-      fps: frames per second; scale: metres per written unit (0.01: centimetres); up_axis: the file's up axis.
-      leaf_tips: add an ``End Site`` at the far end of the flesh of every leaf segment that has none (so that
-        viewers draw those bones with their length).
-
-    Returns:
-      :class:`jaxmocap.io.bvh.BvhData` (write it with :func:`jaxmocap.io.bvh.save_bvh`). Joint names are the
-      segment names; end sites follow the module docstring.
-    """
-    states = np.asarray(states, np.float64)
-    if states.ndim != 2 or states.shape[1] != model.num_dofs:
-        raise ValueError(f"states must be (T, {model.num_dofs}), got {states.shape}")
-    A = up_axis_matrix(up_axis)
-    topo = model.topology
-    S = len(topo.segment_names)
-    offsets = np.asarray(model.offset, np.float64)
-    T = states.shape[0]
-    plans = [_segment_plan(model, s, A) for s in range(S)]
-    local_R = local_t = None
-    if any(p is None for p in plans) and T:
-        R, t = jax.vmap(lambda x: body_mod.segment_poses(model, x))(jnp.asarray(states, model.offset.dtype))
-        R, t = np.asarray(R, np.float64), np.asarray(t, np.float64)
-        local_R = np.empty_like(R)
-        local_t = np.empty_like(t)
-        for s, p in enumerate(topo.parents):
-            if p < 0:
-                local_R[:, s], local_t[:, s] = R[:, s], t[:, s]
-            else:
-                Rp_T = np.swapaxes(R[:, p], -1, -2)
-                local_R[:, s] = Rp_T @ R[:, s]
-                local_t[:, s] = np.einsum("tab,tb->ta", Rp_T, t[:, s] - t[:, p])
-    channels, cols = [], []
-    for s in range(S):
-        plan = plans[s]
-        off_file = A.T @ offsets[s] / scale
-        if plan is not None:
-            chans = []
-            for d, kind, k, sign in plan:
-                if kind == "pos":
-                    chans.append(f"{_AXES[k]}position")
-                    cols.append(off_file[k] + sign * states[:, d] / scale)
-                else:
-                    chans.append(f"{_AXES[k]}rotation")
-                    cols.append(np.rad2deg(sign * states[:, d]))
-            channels.append(tuple(chans))
-            continue
-        moves = bool(topo.parents[s] < 0 or any(topo.dof_kinds[d] == "P" for d in topo.segment_dofs[s]))
-        chans = ("Xposition", "Yposition", "Zposition") if moves else ()
-        rotates = bool(topo.segment_dofs[s]) or not np.allclose(np.asarray(model.rest_rotation[s]), np.eye(3))
-        if moves:
-            tf = np.zeros((T, 3)) if local_t is None else local_t[:, s] @ A / scale  # Aᵀ t, row form
-            cols.extend(tf.T)
-        if rotates:
-            chans += ("Zrotation", "Yrotation", "Xrotation")
-            Rf = np.zeros((T, 3, 3)) if local_R is None else A.T @ local_R[:, s] @ A
-            eul = np.rad2deg(matrix_to_euler(Rf, "ZYX")) if T else np.zeros((0, 3))
-            cols.extend(eul.T)
-        channels.append(chans)
-    frames = np.stack(cols, axis=1) if cols else np.zeros((T, 0))
-    # end sites: evaluation joints away from their segment's origin, then leaf tips
-    end_parents, end_offsets = [], []
-    jp = np.asarray(model.joint_point, np.float64)
-    for k, s in enumerate(model.joint_segment):
-        if np.linalg.norm(jp[k]) > 1e-9:
-            end_parents.append(s)
-            end_offsets.append(A.T @ jp[k] / scale)
-    if leaf_tips:
-        kids = _children(topo.parents)
-        for s in range(S):
-            if not kids[s] and s not in end_parents and model.shape_kind[s] != body_mod.SHAPE_NONE:
-                end_parents.append(s)
-                end_offsets.append(A.T @ np.asarray(model.shape_end[s], np.float64) / scale)
-    return bvh.BvhData(
-        names=tuple(topo.segment_names),
-        parents=tuple(topo.parents),
-        offsets=np.stack([A.T @ o / scale for o in offsets]),
-        channels=tuple(channels),
-        frames=frames,
-        frame_time=1.0 / float(fps),
-        end_parents=tuple(end_parents),
-        end_offsets=np.asarray(end_offsets, np.float64).reshape(-1, 3),
-    )
-
-
-def save_model_bvh(
-    path: str | os.PathLike,
-    model: body_mod.BodyModel,
-    states: np.ndarray,
-    fps: float,
-    *,
-    scale: float = 0.01,
-    up_axis: str = "y",
-    precision: int = 6,
-) -> None:
-    """Write :func:`model_bvh` to ``path`` (atomically)."""
-    data = model_bvh(model, states, fps, scale=scale, up_axis=up_axis)
-    path = pathlib.Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        os.chmod(tmp, _file_mode())
-        bvh.save_bvh(tmp, data, precision=precision)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
-
-
-def bvh_eval_joints(motion: Motion, model: body_mod.BodyModel, tol: float = 1e-4) -> np.ndarray:
-    """Evaluation joints ``(T, J_model, 3)`` (``model.joint_names`` order, metres) of a BVH written by
-    :func:`save_model_bvh` and read back by :func:`jaxmocap.io.bvh.load_bvh`: segment origins are BVH joints
-    (by segment name), the other joints the ``End Site`` of their segment with the matching offset."""
-    jp = np.asarray(model.joint_point, np.float64)
-    out = np.empty((motion.num_frames, len(model.joint_names), 3))
-    for k, s in enumerate(model.joint_segment):
-        name = model.segment_names[s]
-        j = motion.joint_index(name)
-        if np.linalg.norm(jp[k]) <= 1e-9:
-            out[:, k] = motion.positions[:, j]
-            continue
-        cands = [e for e, p in enumerate(motion.end_parents) if p == j]
-        d = [np.linalg.norm(motion.end_offsets[e] - jp[k]) for e in cands]
-        if not cands or min(d) > tol:
-            raise ValueError(f"no end site of {name!r} at the offset of joint {model.joint_names[k]!r}")
-        out[:, k] = motion.end_positions[:, cands[int(np.argmin(d))]]
-    return out

@@ -28,14 +28,19 @@ joint in the CMU ASF / the 3ds Max-friendly cgspeed BVH / the MotionBuilder-frie
   the head): ``head`` / ``Head`` / ``Head``;
 * left/right shoulder — start of the humerus: ``l/rhumerus`` / ``Left/RightShoulder`` / ``Left/RightArm``;
 * left/right elbow — start of the radius: ``l/rradius`` / ``Left/RightElbow`` / ``Left/RightForeArm``;
-* left/right wrist — start of the wrist bone (end of the radius): ``l/rwrist`` / ``Left/RightWrist`` /
-  ``Left/RightHand``;
+* left/right wrist — start of the hand bone, where the hand bends: ``l/rhand`` / ``Left/RightWrist`` /
+  ``Left/RightHand``. In the ASF the ``l/rwrist`` bone (``dof ry``) carries the forearm's twist and continues the
+  radius to the wrist; ``l/rhand`` carries the wrist's flexion and deviation (``dof rx rz``), so the wrist is the
+  end of ``l/rwrist``. The cgspeed conversions agree: their ``Left/RightWrist`` sits one radius plus one ASF
+  wrist bone past the elbow, at the ``lhand`` joint;
 * left/right hip — start of the femur: ``l/rfemur`` / ``Left/RightHip`` / ``Left/RightUpLeg``;
 * left/right knee — start of the tibia: ``l/rtibia`` / ``Left/RightKnee`` / ``Left/RightLeg``;
 * left/right ankle — start of the foot: ``l/rfoot`` / ``Left/RightAnkle`` / ``Left/RightFoot``.
 
 "Start of bone b" is the position of the joint that rotates b (BVH joints and ASF bones are named after the
-bone they move). The ASF and 3ds Max-friendly names are checked on the shipped CMU clips; the
+bone they move). Each ASF joint above is the start of the bone carrying that articulation's bending degrees of
+freedom (shoulder and hip: ``rx ry rz``; elbow and knee: ``rx``; wrist: ``rx rz``; ankle: ``rx rz``), a twist-only
+bone (``l/rwrist``) being part of the segment before it (``tests/io/test_asfamc.py`` reads this from the ASF). The ASF and 3ds Max-friendly names are checked on the shipped CMU clips; the
 MotionBuilder-friendly ones follow the same conversion with the other naming and are accepted by name.
 Note that the cgspeed BVH skeleton drops the ASF ``thorax`` bone: its ``lowerneck`` joint coincides with
 ``Chest2``, the start of the ASF ``thorax`` bone.
@@ -220,6 +225,26 @@ def build_motion(
     )
 
 
+def motion_in_units(motion: Motion, scale: float, up_axis: str, from_up_axis: str = "y") -> Motion:
+    """A motion built in file units (``scale=1``) read with ``from_up_axis``, rebuilt with ``scale`` metres per
+    unit and the file's ``up_axis`` (:func:`build_motion` on the file-frame data recovered with ``A⁻¹``)."""
+    A = up_axis_matrix(from_up_axis)
+    back = lambda v: np.asarray(v, np.float64) @ A  # A⁻¹ v = Aᵀ v, row form v A
+    return build_motion(
+        motion.joint_names,
+        motion.parents,
+        back(motion.offsets),
+        A.T @ motion.local_rotations @ A,
+        back(motion.translations()),
+        motion.fps,
+        motion.source,
+        motion.end_parents,
+        back(motion.end_offsets),
+        scale=scale,
+        up_axis=up_axis,
+    )
+
+
 def rest_positions(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
     """World joint ``(J, 3)`` and end-site ``(E, 3)`` positions of the rest pose (all rotations identity, root at
     its rest offset)."""
@@ -292,8 +317,9 @@ def matrix_to_euler(R, order: str, xp=np):
 # ---------------------------------------------------------------------------------------------------------------
 # Evaluation joints
 
-#: A joint spec is a joint name (its position) or ``("end_mid", name)`` (midpoint of the joint and its end site).
-JointSpec = str | tuple[str, str]
+#: A joint spec is a joint name (its position), ``("end_mid", name)`` (midpoint of the joint and its first end
+#: site) or ``("mid", a, b)`` (midpoint of joints ``a`` and ``b``).
+JointSpec = str | tuple[str, str] | tuple[str, str, str]
 
 CMU_ASF_EVAL: dict[str, JointSpec] = {
     "root": "root",
@@ -301,10 +327,10 @@ CMU_ASF_EVAL: dict[str, JointSpec] = {
     "head": ("end_mid", "head"),
     "left_shoulder": "lhumerus",
     "left_elbow": "lradius",
-    "left_wrist": "lwrist",
+    "left_wrist": "lhand",
     "right_shoulder": "rhumerus",
     "right_elbow": "rradius",
-    "right_wrist": "rwrist",
+    "right_wrist": "rhand",
     "left_hip": "lfemur",
     "left_knee": "ltibia",
     "left_ankle": "lfoot",
@@ -360,8 +386,17 @@ KNOWN_MAPPINGS: dict[str, dict[str, JointSpec]] = {
 def _spec_ok(motion: Motion, spec: JointSpec) -> bool:
     if isinstance(spec, str):
         return spec in motion.joint_names
-    kind, name = spec
-    return kind == "end_mid" and name in motion.joint_names and motion.joint_index(name) in motion.end_parents
+    if spec[0] == "mid" and len(spec) == 3:
+        return all(n in motion.joint_names for n in spec[1:])
+    if spec[0] != "end_mid" or len(spec) != 2:
+        return False
+    name = spec[1]
+    return name in motion.joint_names and motion.joint_index(name) in motion.end_parents
+
+
+def spec_joints(spec: JointSpec) -> tuple[str, ...]:
+    """The joint names a :data:`JointSpec` refers to."""
+    return (spec,) if isinstance(spec, str) else tuple(spec[1:])
 
 
 def eval_mapping(motion: Motion) -> dict[str, JointSpec]:
@@ -371,13 +406,17 @@ def eval_mapping(motion: Motion) -> dict[str, JointSpec]:
             return mapping
     raise KeyError(
         f"{motion.source or 'motion'}: skeleton matches none of the known CMU namings "
-        f"({', '.join(KNOWN_MAPPINGS)}); pass mapping= explicitly"
+        f"({', '.join(KNOWN_MAPPINGS)}); recognise it with jaxmocap.io.skeletons.recognise or pass mapping="
     )
 
 
 def _spec_points(motion: Motion, spec: JointSpec, joints: np.ndarray, ends: np.ndarray) -> np.ndarray:
     if isinstance(spec, str):
         return joints[..., motion.joint_index(spec), :]
+    if spec[0] == "mid":
+        return 0.5 * (
+            joints[..., motion.joint_index(spec[1]), :] + joints[..., motion.joint_index(spec[2]), :]
+        )
     _, name = spec
     e = motion.end_site_of(name)
     return 0.5 * (joints[..., motion.joint_index(name), :] + ends[..., e, :])
@@ -434,6 +473,8 @@ def body_dimensions_from_motion(motion: Motion, mapping: Mapping[str, JointSpec]
     head_spec = mapping["head"]
     if isinstance(head_spec, str):
         head_start = head_end = E["head"]
+    elif head_spec[0] == "mid":
+        head_start, head_end = X[motion.joint_index(head_spec[1])], X[motion.joint_index(head_spec[2])]
     else:
         j = motion.joint_index(head_spec[1])
         head_start, head_end = X[j], ends[motion.end_site_of(head_spec[1])]

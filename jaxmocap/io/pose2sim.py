@@ -1,30 +1,32 @@
-"""Pose2Sim recordings: synchronised videos (or image folders), their calibration, OpenPose detections and the
-triangulated ``.trc`` reference, as a tracking source.
+"""Pose2Sim recordings: a Pose2Sim project folder as the input of a tracking run, the ``.trc`` reference, and the
+scaled image-folder source of the tests and benchmarks.
 
-Layout of a Pose2Sim trial (the ``Demo_SinglePerson`` demo):
+**Project folder** (:func:`open_project`, what ``jaxmocap track FOLDER`` reads when ``FOLDER`` holds a
+``Config.toml``), as Pose2Sim lays out a trial:
 
-* ``videos/camNN.mp4`` (or, for small copies, ``images/camNN/NNNN.jpg``), one per camera, frame ``t`` of every
-  camera the same instant;
-* a Pose2Sim calibration TOML (OpenCV convention, :func:`jaxmocap.io.calibration.load_pose2sim_toml`);
-* ``camNN_json/camNN.NNNN.json``: OpenPose BODY_25B detections of every person in view;
-* a ``.trc`` file of the 3D keypoints Pose2Sim triangulated from them (y-up, see :mod:`jaxmocap.io.trc`).
+* ``Config.toml`` — ``[project] frame_rate`` (a number, or ``'auto'``: the videos'), ``frame_range`` (``[a, b]``:
+  the frames tracked unless ``--frames`` says otherwise), ``[pose] pose_model`` (the keypoint layout, used when the
+  files leave it open: :func:`jaxmocap.io.subject.load_subject`);
+* ``calibration/`` — one calibration: a ``.toml`` (Pose2Sim's ``Calib_*.toml``), else EasyMocap's
+  ``intri.yml``/``extri.yml``, else a Qualisys ``.qca.txt``; ``calibration/extrinsics/<video>_ext.*`` scene images,
+  when there is one per camera, fill the background where the subject never leaves a pixel;
+* ``videos/`` — one video per camera, in name order (the calibration's camera order);
+* ``pose/`` — optional: ``<video>_json/`` keypoint folders (any layout of :mod:`jaxmocap.io.keypoints`).
 
-**Image size.** Some videos are narrower than the calibration says (1080 vs 1088 px): the detections were made on
-the narrow frames in the calibration's pixel coordinates, so the frames are padded on the right (edge pixels
-repeated) to the calibrated width.
+It becomes a :class:`jaxmocap.io.sources.VideoSource` (codec padding, units, camera-order checks, subject selection).
 
-**Scale.** The source delivers images resized by ``scale`` (``cv2.INTER_AREA``) with the rig and the keypoints
-mapped to the resized pixels (:func:`jaxmocap.geometry.camera.scale_images`: ``u' = (u + 0.5)·s − 0.5``), so a tracker can
-work on small images without resizing every frame twice.
+**The demo's layout** (``Demo_SinglePerson``): ``videos/camNN.mp4``, a Pose2Sim calibration TOML (OpenCV convention,
+:func:`jaxmocap.io.calibration.load_pose2sim_toml`), ``camNN_json/camNN.NNNN.json`` OpenPose BODY_25B detections
+of every person in view and a ``.trc`` of the 3D keypoints Pose2Sim triangulated from them (y-up,
+:mod:`jaxmocap.io.trc`); cam01/cam02 videos are 1080 px wide where the calibration says 1088 (codec padding).
 
-**Subject.** A file can hold bystanders; the subject is the person whose confident keypoints (c > 0.1) span the
-largest bounding-box diagonal (the person nearest to the camera), which picks the balancing subject in every frame
-of the demo.
+**Image-folder source** (:class:`Pose2SimSource`): images resized by ``scale`` (``cv2.INTER_AREA``) with the rig and
+the keypoints mapped to the resized pixels (:func:`jaxmocap.geometry.camera.scale_images`: ``u' = (u + 0.5)·s −
+0.5``), frames narrower than the calibration by codec padding padded on the right (edge pixels repeated).
 """
 
 from __future__ import annotations
 
-import json
 import os
 import pathlib
 from collections.abc import Sequence
@@ -36,25 +38,31 @@ from jaxmocap.errors import MocapInputError
 from jaxmocap.geometry import body as body_mod
 from jaxmocap.geometry import camera
 from jaxmocap.io.calibration import load_calibration
-from jaxmocap.io.openpose import BODY_25B_INDEX, BODY_25B_KEYPOINTS
-from jaxmocap.io.sources import BadFrame, FrameData
+from jaxmocap.io.sources import BadFrame, FrameData, VideoSource, codec_cropped
+from jaxmocap.io.subject import load_subject, subject_box
 from jaxmocap.io.trc import load_trc
 
 __all__ = [
-    "KEYPOINT_OF_TRC",
+    "JOINT_OF_TRC",
     "Pose2SimSource",
     "REFERENCE_OF",
-    "body_dimensions",
+    "is_project",
+    "open_project",
+    "project_settings",
     "reference_joints",
-    "subject_keypoints",
 ]
 
-#: BODY_25B keypoint index of each ``.trc`` marker (Pose2Sim's BODY_25B skeleton names the upper neck ``Neck``
-#: and the head top ``Head``; the others as OpenPose does).
-_TRC_NAME = {"UpperNeck": "Neck", "HeadTop": "Head"}
-KEYPOINT_OF_TRC = {
-    _TRC_NAME.get(name, name): BODY_25B_INDEX[name] for name in ("Nose", *BODY_25B_KEYPOINTS[5:19])
-}  # the nose, then the shoulders to the head top
+#: Index of each ``.trc`` marker that is an evaluation joint in the keypoints of a source
+#: (:func:`jaxmocap.io.keypoints.eval_keypoints`; Pose2Sim's ``Neck`` is the thorax).
+JOINT_OF_TRC = {
+    name: body_mod.EVAL_JOINTS.index(joint)
+    for name, joint in [("Neck", "thorax")]
+    + [
+        (f"{side[0].upper()}{part.capitalize()}", f"{side}_{part}")
+        for side in ("left", "right")
+        for part in ("shoulder", "elbow", "wrist", "hip", "knee", "ankle")
+    ]
+}
 
 #: ``.trc`` markers averaged for each evaluation joint (:data:`jaxmocap.geometry.body.EVAL_JOINTS`). ``root`` is the middle
 #: of the hips; ``head`` (the model's head centre) is approximated by the middle of the head top and the nose.
@@ -88,85 +96,6 @@ def reference_joints(trc_path: str | os.PathLike) -> tuple[np.ndarray, dict[str,
         [np.mean([markers[m] for m in REFERENCE_OF[j]], axis=0) for j in body_mod.EVAL_JOINTS], axis=1
     )
     return J, markers, fps
-
-
-def _people(path: pathlib.Path) -> list[np.ndarray]:
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise MocapInputError(path, f"cannot read OpenPose JSON: {e}") from None
-    people = data.get("people") if isinstance(data, dict) else None
-    if not isinstance(people, list):
-        raise MocapInputError(path, "no 'people' list: not an OpenPose keypoint file")
-    out = []
-    for p in people:
-        kp = np.asarray(p.get("pose_keypoints_2d", []), np.float64)
-        if kp.size % 3 or kp.size == 0:
-            raise MocapInputError(path, "pose_keypoints_2d is not a list of (x, y, c) triples")
-        out.append(kp.reshape(-1, 3))
-    return out
-
-
-def subject_keypoints(path: str | os.PathLike, num_keypoints: int = 25) -> np.ndarray:
-    """Keypoints ``(K, 3)`` of the subject in one OpenPose file: the person whose keypoints with confidence > 0.1
-    span the largest bounding-box diagonal (zeros when nobody is detected)."""
-    best, size = np.zeros((num_keypoints, 3)), -1.0
-    for kp in _people(pathlib.Path(path)):
-        ok = kp[:, 2] > 0.1
-        if ok.sum() < 2:
-            continue
-        d = float(np.linalg.norm(kp[ok, :2].max(axis=0) - kp[ok, :2].min(axis=0)))
-        if d > size:
-            best, size = kp[:num_keypoints], d
-    return best
-
-
-def body_dimensions(keypoints: np.ndarray, rig: camera.Rig) -> dict[str, float]:
-    """Subject dimensions (metres) for :func:`jaxmocap.geometry.body.build` from detections ``(T, V, 25, 3)`` (BODY_25B,
-    pixels of ``rig``): every keypoint triangulated per frame (confidence > 0.3 in at least two views), then the
-    median over frames of each limb length (both sides pooled), shoulder and hip widths, the torso length
-    ``|neck − mid-hip|`` and the shoulder drop ``|neck − mid-shoulder|``, with ``hip_drop = 0``: the detector's hips
-    define the pelvis centre (their middle), so the model's root and thorax coincide with the middle of the
-    detected hips and the detected neck."""
-    import jax.numpy as jnp
-
-    kp = np.asarray(keypoints, np.float64)
-    rj = rig.to_jax(jnp.float32)
-    T = kp.shape[0]
-    X = np.full((T, kp.shape[2], 3), np.nan)
-    for t in range(T):
-        for k in range(kp.shape[2]):
-            c = np.where(kp[t, :, k, 2] > 0.3, kp[t, :, k, 2], 0.0)
-            if np.sum(c > 0) >= 2:
-                X[t, k] = np.asarray(
-                    camera.triangulate(
-                        rj, jnp.asarray(kp[t, :, k, :2], jnp.float32), jnp.asarray(c, jnp.float32)
-                    )
-                )
-
-    def dist(a, b):
-        return np.linalg.norm(X[:, a] - X[:, b], axis=-1)
-
-    def med(*ds):
-        v = np.concatenate(ds)
-        v = v[np.isfinite(v)]
-        return float(np.median(v)) if v.size else float("nan")
-
-    k = dict(KEYPOINT_OF_TRC)
-    mid_hip = 0.5 * (X[:, k["LHip"]] + X[:, k["RHip"]])
-    mid_shoulder = 0.5 * (X[:, k["LShoulder"]] + X[:, k["RShoulder"]])
-    dims = {
-        "upper_arm_length": med(dist(k["LShoulder"], k["LElbow"]), dist(k["RShoulder"], k["RElbow"])),
-        "forearm_length": med(dist(k["LElbow"], k["LWrist"]), dist(k["RElbow"], k["RWrist"])),
-        "thigh_length": med(dist(k["LHip"], k["LKnee"]), dist(k["RHip"], k["RKnee"])),
-        "shin_length": med(dist(k["LKnee"], k["LAnkle"]), dist(k["RKnee"], k["RAnkle"])),
-        "shoulder_width": med(dist(k["LShoulder"], k["RShoulder"])),
-        "hip_width": med(dist(k["LHip"], k["RHip"])),
-        "torso_length": med(np.linalg.norm(X[:, k["Neck"]] - mid_hip, axis=-1)),
-        "shoulder_drop": med(np.linalg.norm(X[:, k["Neck"]] - mid_shoulder, axis=-1)),
-        "hip_drop": 0.0,
-    }
-    return {n: v for n, v in dims.items() if np.isfinite(v) and (v > 0 or n == "hip_drop")}
 
 
 class Pose2SimSource:
@@ -234,19 +163,9 @@ class Pose2SimSource:
                     files.append(hits[0])
                 self.image_files.append(files)
         self.num_frames = len(self.frame_numbers)
-        kps = []
-        for c in cams:
-            folder = pathlib.Path(keypoint_dirs[c])
-            per = []
-            for f in self.frame_numbers:
-                hits = sorted(folder.glob(f"*.{f:04d}.json")) or sorted(
-                    folder.glob(f"*{f:012d}_keypoints.json")
-                )
-                if not hits:
-                    raise MocapInputError(folder, f"no keypoint file for frame {f}")
-                per.append(subject_keypoints(hits[0]))
-            kps.append(np.stack(per))
-        kp = np.stack(kps, axis=1)  # (T, V, K, 3) full-size pixels
+        sub = load_subject([keypoint_dirs[c] for c in cams], self.full_rig, self.frame_numbers, fps)
+        self.notes = sub.notes
+        kp = sub.keypoints.astype(np.float64)  # (T, V, 15, 3) full-size pixels
         self.keypoints_full = kp.astype(np.float32)
         kp = kp.copy()
         kp[..., :2] = np.where(kp[..., 2:3] > 0, (kp[..., :2] + 0.5) * self.scale - 0.5, 0.0)
@@ -271,12 +190,12 @@ class Pose2SimSource:
         if img.shape[1] == w and img.shape[0] == h:
             return img
         W, H = self.full_rig.image_size[v]
-        if img.shape[0] != H or img.shape[1] > W:
+        if not codec_cropped((W, H), (img.shape[1], img.shape[0])):
             raise MocapInputError(
                 None, f"camera {self.view_names[v]}: frame {img.shape[1]}x{img.shape[0]}, not {W}x{H}"
             )
-        if img.shape[1] < W:
-            img = cv2.copyMakeBorder(img, 0, 0, 0, W - img.shape[1], cv2.BORDER_REPLICATE)
+        if img.shape[1] < W or img.shape[0] < H:
+            img = cv2.copyMakeBorder(img, 0, H - img.shape[0], 0, W - img.shape[1], cv2.BORDER_REPLICATE)
         return cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
 
     def read(self, t: int, masks: bool = True, depth: bool = True):
@@ -313,17 +232,8 @@ class Pose2SimSource:
         for t in pick:
             fd = self.read(t)
             for v, img in enumerate(fd.images):
-                m = np.ones(img.shape[:2], bool)
-                kp = self.keypoints[t, v]
-                ok = kp[:, 2] > 0.1
-                if ok.sum() >= 2:
-                    lo, hi = kp[ok, :2].min(axis=0), kp[ok, :2].max(axis=0)
-                    pad = 0.25 * (hi[1] - lo[1])
-                    x0, y0 = np.floor(lo - pad).astype(int)
-                    x1, y1 = np.ceil(hi + pad).astype(int)
-                    m[max(y0, 0) : max(y1 + 1, 0), max(x0, 0) : max(x1 + 1, 0)] = False
                 stacks[v].append(img.astype(np.float32))
-                keep[v].append(m)
+                keep[v].append(subject_box(self.keypoints[t, v], img.shape[:2]))
         out = []
         for v in range(len(self.cameras)):
             S = np.stack(stacks[v])
@@ -350,3 +260,119 @@ class Pose2SimSource:
     def close(self) -> None:
         for cap in self.caps or []:
             cap.release()
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# A Pose2Sim project folder
+
+VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v")
+
+
+def is_project(folder: str | os.PathLike) -> bool:
+    """Whether ``folder`` is a Pose2Sim project (a folder with ``Config.toml`` and ``videos/``)."""
+    p = pathlib.Path(folder)
+    return p.is_dir() and (p / "Config.toml").is_file() and (p / "videos").is_dir()
+
+
+def project_settings(folder: str | os.PathLike) -> dict:
+    """What ``Config.toml`` says that a tracking run uses: ``fps`` (None: the videos'), ``frames`` (``"a:b"`` or
+    None), ``layout`` (the keypoint layout of ``[pose] pose_model``, or None) and ``multi_person``."""
+    import tomllib
+
+    from jaxmocap.io.keypoints import POSE2SIM_MODELS
+
+    path = pathlib.Path(folder) / "Config.toml"
+    try:
+        cfg = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as e:
+        raise MocapInputError(path, f"cannot read: {e}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise MocapInputError(path, f"invalid TOML: {e}") from None
+    project = cfg.get("project", {}) if isinstance(cfg.get("project"), dict) else {}
+    pose = cfg.get("pose", {}) if isinstance(cfg.get("pose"), dict) else {}
+    rate = project.get("frame_rate", "auto")
+    fps = float(rate) if isinstance(rate, int | float) and not isinstance(rate, bool) and rate > 0 else None
+    rng = project.get("frame_range", "auto")
+    frames = None
+    if isinstance(rng, list) and len(rng) == 2 and all(isinstance(v, int) for v in rng):
+        frames = f"{rng[0]}:{rng[1]}"
+    model = pose.get("pose_model")
+    layout = POSE2SIM_MODELS.get(str(model).upper()) if isinstance(model, str) else None
+    return {
+        "fps": fps,
+        "frames": frames,
+        "layout": layout,
+        "multi_person": project.get("multi_person") is True,
+    }
+
+
+def _project_calibration(folder: pathlib.Path) -> pathlib.Path:
+    cal = folder / "calibration"
+    if not cal.is_dir():
+        raise MocapInputError(folder, "a Pose2Sim project needs a calibration/ folder")
+    tomls = sorted(cal.glob("*.toml"))
+    if len(tomls) > 1:
+        calib = [p for p in tomls if p.name.lower().startswith("calib")]
+        if len(calib) != 1:
+            names = ", ".join(p.name for p in tomls)
+            raise MocapInputError(cal, f"several calibration files ({names}): keep one")
+        tomls = calib
+    if tomls:
+        return tomls[0]
+    if (cal / "intri.yml").is_file() and (cal / "extri.yml").is_file():
+        return cal
+    qca = sorted(cal.glob("*.qca.txt"))
+    if len(qca) == 1:
+        return qca[0]
+    raise MocapInputError(cal, "no calibration file (a .toml, intri.yml + extri.yml or a .qca.txt)")
+
+
+def _project_keypoints(folder: pathlib.Path, videos: list[pathlib.Path]) -> list[pathlib.Path] | None:
+    pose = folder / "pose"
+    if not pose.is_dir():
+        return None
+    dirs = sorted(p for p in pose.iterdir() if p.is_dir() and p.name.lower().endswith("_json"))
+    if not dirs:
+        return None
+    by_name = {p.name[: -len("_json")]: p for p in dirs}
+    if all(v.stem in by_name for v in videos):
+        return [by_name[v.stem] for v in videos]
+    if len(dirs) != len(videos):
+        raise MocapInputError(pose, f"{len(dirs)} keypoint folders (*_json) for {len(videos)} videos")
+    return dirs
+
+
+def open_project(
+    folder: str | os.PathLike, keypoint_layout: str = "auto", calibration_units: str = "auto"
+) -> VideoSource:
+    """The frame source of a Pose2Sim project folder (module docstring); its ``project`` attribute holds
+    :func:`project_settings` and its ``notes`` what was assumed."""
+    folder = pathlib.Path(folder)
+    if not is_project(folder):
+        raise MocapInputError(folder, "not a Pose2Sim project (Config.toml and videos/)")
+    settings = project_settings(folder)
+    videos = sorted(p for p in (folder / "videos").iterdir() if p.suffix.lower() in VIDEO_SUFFIXES)
+    if not videos:
+        raise MocapInputError(folder / "videos", "no video files")
+    calib = _project_calibration(folder)
+    keypoints = _project_keypoints(folder, videos)
+    src = VideoSource(
+        videos,
+        calib,
+        keypoints,
+        keypoint_layout=keypoint_layout,
+        calibration_units=calibration_units,
+        layout_hint=settings["layout"],
+        fps=settings["fps"],
+    )
+    if keypoints is None:
+        src.notes.append(f"{folder / 'pose'}: no keypoint folders: tracking from the images alone")
+    if settings["multi_person"]:
+        src.notes.append("Config.toml says multi_person = true: one person, the subject, is tracked")
+    ext = folder / "calibration" / "extrinsics"
+    scenes = [sorted(ext.glob(f"{v.stem}_ext.*")) if ext.is_dir() else [] for v in videos]
+    if all(scenes):
+        src.scene_images = [s[0] for s in scenes]
+    src.project = settings
+    src.description = {"pose2sim_project": os.fspath(folder), **src.description}
+    return src

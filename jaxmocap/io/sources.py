@@ -24,9 +24,9 @@ import cv2
 import numpy as np
 
 from jaxmocap.errors import MocapInputError
-from jaxmocap.io.calibration import load_calibration
+from jaxmocap.io.calibration import check_units, load_calibration
 
-__all__ = ["BadFrame", "FrameData", "SequenceSource", "VideoSource"]
+__all__ = ["BadFrame", "FrameData", "SequenceSource", "VideoSource", "codec_cropped", "fit_image_sizes"]
 
 
 class BadFrame(Exception):
@@ -55,10 +55,27 @@ def _check_depth(path, d: np.ndarray) -> np.ndarray:
     return d
 
 
+def _check_depth_units(path, d: np.ndarray, from_mm: bool) -> None:
+    """Refuse a depth map whose median depth (of the positive values, every 4th pixel) is not 0.1–30 m."""
+    sample = d[::4, ::4]
+    pos = sample[sample > 0]
+    if pos.size < 16:
+        return
+    med = float(np.median(pos))
+    if 0.1 <= med <= 30.0:
+        return
+    if from_mm:
+        why = "16-bit depth images are millimetres"
+    else:
+        why = "depth maps in .npy / float TIFF files are metres" + (" (millimetres?)" if med > 30 else "")
+    raise MocapInputError(path, f"median depth {med:.4g} m, not 0.1-30 m: {why}")
+
+
 def _read_depth_file(path: pathlib.Path, size) -> np.ndarray:
     """A depth map file: ``.npy`` float metres, or a 16-bit PNG / float TIFF (millimetres / metres)."""
     if not path.is_file():
         raise MocapInputError(path, "missing depth map")
+    from_mm = False
     if path.suffix.lower() == ".npy":
         try:
             d = np.load(path, allow_pickle=False)
@@ -68,8 +85,10 @@ def _read_depth_file(path: pathlib.Path, size) -> np.ndarray:
         img = cv2.imread(os.fspath(path), cv2.IMREAD_UNCHANGED)
         if img is None:
             raise MocapInputError(path, "cannot read depth map (corrupt or unknown format)")
-        d = img.astype(np.float32) / 1000.0 if img.dtype == np.uint16 else img
+        from_mm = img.dtype == np.uint16
+        d = img.astype(np.float32) / 1000.0 if from_mm else img
     d = _check_depth(path, d)
+    _check_depth_units(path, d, from_mm)
     if size is not None and (d.shape[1], d.shape[0]) != tuple(size):
         raise MocapInputError(
             path, f"depth map is {d.shape[1]}x{d.shape[0]}, the calibration says {size[0]}x{size[1]}"
@@ -118,10 +137,58 @@ class SequenceSource:
         pass
 
 
+def codec_cropped(calibrated: tuple[int, int], video: tuple[int, int]) -> bool:
+    """Whether a ``video (w, h)`` frame is the ``calibrated (w, h)`` image cropped at the right / bottom by a codec's
+    padding: each side equal, or the calibrated one the video's rounded up to the codec's block (a multiple of 8
+    that is less than 16 pixels larger: 1080 → 1088)."""
+    return all(c == v or (v < c < v + 16 and c % 8 == 0) for c, v in zip(calibrated, video, strict=True))
+
+
+def fit_image_sizes(rig, sizes, files, calibration) -> tuple[tuple, list[str]]:
+    """The image size of each camera for frames of ``sizes`` (w, h) from ``files``: the calibrated size, the
+    video's when the calibration has none or when the video is the calibrated image cropped by codec padding
+    (:func:`codec_cropped`: pixel coordinates are kept, a note says so); any other difference is refused."""
+    fixed, notes = [], []
+    for k, (f, s) in enumerate(zip(files, sizes, strict=True)):
+        want = tuple(rig.image_size[k])
+        if want == (0, 0) or want == tuple(s):
+            fixed.append(tuple(s))
+        elif codec_cropped(want, s):
+            fixed.append(tuple(s))
+            notes.append(
+                f"camera {rig.names[k]!r} is calibrated for {want[0]}x{want[1]} images and {pathlib.Path(f).name} "
+                f"is {s[0]}x{s[1]}: taken as the calibrated image cropped by the codec's padding (same pixel "
+                "coordinates)"
+            )
+        else:
+            raise MocapInputError(
+                calibration,
+                f"camera {rig.names[k]!r} is calibrated for {want[0]}x{want[1]} images but {pathlib.Path(f).name} "
+                f"is {s[0]}x{s[1]} (not the calibrated image cropped by codec padding)",
+            )
+    return tuple(fixed), notes
+
+
+def _numbered(paths) -> list[pathlib.Path]:
+    """Paths in order of the last number in their names (then by name)."""
+    from jaxmocap.io.openpose import frame_number
+
+    return sorted(paths, key=lambda p: (frame_number(p.name + ".json") or 0, p.name))
+
+
 class VideoSource:
     """Synchronised videos (frame ``t`` of every video is the same instant) with their calibration, optional
-    OpenPose JSON folders (one per camera) and depth-map folders (one per camera: ``.npy`` metres, 16-bit PNG
-    millimetres, or float TIFF metres, one file per frame in name order)."""
+    keypoint folders (one per camera, OpenPose-format JSON of any layout of :mod:`jaxmocap.io.keypoints`, matched
+    to frames by the number in their names; the subject chosen across views and time, :mod:`jaxmocap.io.subject`)
+    and depth-map folders (one per camera: ``.npy`` metres, 16-bit PNG millimetres, or float TIFF metres, one file
+    per frame in the order of the numbers in their names).
+
+    Checks: the calibration's units (:func:`jaxmocap.io.calibration.check_units`, ``calibration_units``), its image
+    sizes against the videos' (:func:`fit_image_sizes`), and, with keypoints, its cameras against the detections
+    (:func:`jaxmocap.io.subject.check_rig`: camera order, units); depth maps must be in metres (median depth
+    0.1–30 m). ``notes``: what was assumed or converted, for the user. ``keypoint_layout``: ``"auto"`` or a layout
+    name; ``layout_hint``: the layout the recording's configuration names (used when the files leave it open).
+    """
 
     def __init__(
         self,
@@ -129,6 +196,10 @@ class VideoSource:
         calibration: str | os.PathLike,
         keypoints: Sequence[str | os.PathLike] | None = None,
         depth: Sequence[str | os.PathLike] | None = None,
+        keypoint_layout: str = "auto",
+        calibration_units: str = "auto",
+        layout_hint: str | None = None,
+        fps: float | None = None,
     ):
         self.videos = [pathlib.Path(v) for v in videos]
         if not self.videos:
@@ -142,6 +213,8 @@ class VideoSource:
         if not calibration.exists():
             raise MocapInputError(calibration, "no such calibration file")
         rig = load_calibration(calibration)
+        rig, unit_note = check_units(rig, calibration_units, calibration)
+        self.notes = [] if unit_note is None else [f"{calibration}: {unit_note}"]
         if rig.num_views != len(self.videos):
             raise MocapInputError(
                 calibration,
@@ -164,44 +237,44 @@ class VideoSource:
                 )
         if counts[0] <= 0:
             raise MocapInputError(self.videos[0], "the video has no frame")
-        fixed = []
-        for k, (v, s) in enumerate(zip(self.videos, sizes, strict=True)):
-            want = tuple(rig.image_size[k])
-            if want == (0, 0):
-                fixed.append(s)
-            elif want != s:
-                raise MocapInputError(
-                    calibration,
-                    f"camera {rig.names[k]!r} is calibrated for {want[0]}x{want[1]} images but {v.name} is {s[0]}x{s[1]}",
-                )
-            else:
-                fixed.append(want)
-        self.rig = dataclasses.replace(rig, image_size=tuple(fixed))
+        fixed, size_notes = fit_image_sizes(rig, sizes, self.videos, calibration)
+        self.notes += size_notes
+        self.rig = dataclasses.replace(rig, image_size=fixed)
         self.num_frames = counts[0]
-        self.fps = fpss[0] if fpss[0] > 0 and math.isfinite(fpss[0]) else 30.0
+        if fps is not None:
+            self.fps = float(fps)
+        else:
+            self.fps = fpss[0] if fpss[0] > 0 and math.isfinite(fpss[0]) else 30.0
         self.view_names = self.rig.names
         self.positions = [0] * len(self.caps)
         self.has_masks = False
         self.body_path = None
         self.groundtruth = None
+        self.scene_images = None
         self.keypoints = None
+        self.keypoint_layout = None
         if keypoints:
-            from jaxmocap.io.openpose import load_openpose_folder
+            from jaxmocap.io.subject import load_subject
 
             if len(keypoints) != len(self.videos):
                 raise MocapInputError(
                     keypoints[0], f"{len(keypoints)} keypoint folders for {len(self.videos)} videos"
                 )
-            kps = []
-            for folder in keypoints:
-                kp = load_openpose_folder(folder)
-                if kp.shape[0] != self.num_frames:
-                    raise MocapInputError(
-                        folder, f"has {kp.shape[0]} keypoint files for {self.num_frames} video frames"
-                    )
-                kps.append(kp)
-            self.keypoints = np.stack(kps, axis=1).astype(np.float32)  # (T, V, K, 3)
+            sub = load_subject(
+                [os.fspath(k) for k in keypoints],
+                self.rig,
+                range(self.num_frames),
+                self.fps,
+                keypoint_layout,
+                layout_hint,
+                total=self.num_frames,
+            )
+            self.notes += sub.notes
+            self.keypoints, self.keypoint_layout = sub.keypoints, sub.layout  # (T, V, 15, 3)
         self.has_keypoints = self.keypoints is not None
+        #: no detections checked the calibration against the videos: the tracker's setup checks the camera order
+        #: with the silhouettes (:meth:`jaxmocap.tracking.setup.TrackSetup._check_camera_order`)
+        self.check_silhouettes = not self.has_keypoints
         self.depth_files = None
         if depth:
             if len(depth) != len(self.videos):
@@ -211,7 +284,7 @@ class VideoSource:
                 folder = pathlib.Path(folder)
                 if not folder.is_dir():
                     raise MocapInputError(folder, "no such depth folder")
-                files = sorted(
+                files = _numbered(
                     p for p in folder.iterdir() if p.suffix.lower() in (".npy", ".png", ".tif", ".tiff")
                 )
                 if len(files) != self.num_frames:
@@ -224,6 +297,7 @@ class VideoSource:
             "videos": [os.fspath(v) for v in self.videos],
             "calibration": os.fspath(calibration),
             "keypoints": [os.fspath(k) for k in keypoints or []],
+            "keypoint_layout": self.keypoint_layout,
             "depth": [os.fspath(d) for d in depth or []],
         }
 

@@ -1,9 +1,11 @@
-"""TRC marker / keypoint trajectories (OpenSim's tab-separated text format, as written by Pose2Sim).
+"""TRC marker / keypoint trajectories (OpenSim's tab-separated text format, as written by Pose2Sim): reader and
+writer.
 
-Layout: line 1 ``PathFileType …``; line 2 the header keys (``DataRate CameraRate NumFrames NumMarkers Units …``);
-line 3 their values; line 4 ``Frame# Time`` and one name per marker (each followed by two empty columns); line 5
-``X1 Y1 Z1 X2 …``; then (after an optional blank line) one row per frame: frame number, time, then x y z per
-marker. Empty fields are missing samples.
+Layout: line 1 ``PathFileType 4 (X/Y/Z) <file name>``; line 2 the header keys (``DataRate CameraRate NumFrames
+NumMarkers Units OrigDataRate OrigDataStartFrame OrigNumFrames``); line 3 their values; line 4 ``Frame# Time`` and
+one name per marker (each followed by two empty columns); line 5 two empty columns then ``X1 Y1 Z1 X2 …``; then
+(after an optional blank line) one row per frame: frame number, time, then x y z per marker. Empty fields are
+missing samples. :func:`save_trc` writes exactly Pose2Sim's layout (no blank line, ``\\n`` line ends), y up.
 """
 
 from __future__ import annotations
@@ -14,7 +16,19 @@ import numpy as np
 
 from jaxmocap.errors import MocapInputError
 
-__all__ = ["load_trc"]
+__all__ = ["HEADER_KEYS", "load_trc", "save_trc", "trc_text"]
+
+#: The keys of line 2, in Pose2Sim's order.
+HEADER_KEYS = (
+    "DataRate",
+    "CameraRate",
+    "NumFrames",
+    "NumMarkers",
+    "Units",
+    "OrigDataRate",
+    "OrigDataStartFrame",
+    "OrigNumFrames",
+)
 
 _UNIT_SCALE = {"m": 1.0, "mm": 1e-3, "cm": 1e-2}
 
@@ -83,3 +97,58 @@ def load_trc(path: str | os.PathLike, y_up: bool = True) -> tuple[tuple[str, ...
     if y_up:
         pos = pos[..., [2, 0, 1]]
     return names, pos, fps
+
+
+def _num(v: float) -> str:
+    return "" if not np.isfinite(v) else f"{v:.10g}"
+
+
+def trc_text(
+    names: tuple[str, ...] | list[str],
+    positions: np.ndarray,
+    fps: float,
+    frame_index: np.ndarray | None = None,
+    file_name: str = "poses.trc",
+    y_up: bool = True,
+) -> str:
+    """The text of a ``.trc`` file (Pose2Sim's layout, units ``m``).
+
+    Args:
+      names: ``M`` marker names (no tabs). positions: ``(T, M, 3)`` metres in the project's z-up world (NaN:
+        missing, written as empty fields); with ``y_up`` written as ``(X, Y, Z)_trc = (y, z, x)`` (the inverse of
+        :func:`load_trc`'s mapping), else as given.
+      fps: DataRate and CameraRate. frame_index: ``(T,)`` input frame numbers (default ``0..T-1``): ``Frame#`` is
+        ``frame + 1`` and ``Time`` ``frame / fps`` (the ``time`` of ``poses.npz``); OrigDataStartFrame is the first.
+      file_name: the name on line 1.
+    """
+    P = np.asarray(positions, np.float64)
+    T, M = P.shape[0], len(names)
+    if P.shape != (T, M, 3):
+        raise ValueError(f"positions must be (T, {M}, 3), got {P.shape}")
+    if any("\t" in n or not n for n in names):
+        raise ValueError("marker names must be non-empty and free of tabs")
+    if not (np.isfinite(fps) and fps > 0):
+        raise ValueError(f"fps must be positive, got {fps!r}")
+    frames = np.arange(T) if frame_index is None else np.asarray(frame_index, np.int64).reshape(T)
+    if y_up:
+        P = P[..., [1, 2, 0]]
+    rate = f"{fps:g}"
+    start = int(frames[0]) if T else 0
+    lines = [
+        f"PathFileType\t4\t(X/Y/Z)\t{file_name}",
+        "\t".join(HEADER_KEYS),
+        "\t".join([rate, rate, str(T), str(M), "m", rate, str(start), str(T)]),
+        "Frame#\tTime\t" + "\t\t\t".join(names) + "\t\t",
+        "\t\t" + "\t".join(f"X{i + 1}\tY{i + 1}\tZ{i + 1}" for i in range(M)),
+    ]
+    for f, row in zip(frames, P.reshape(T, 3 * M), strict=True):
+        lines.append("\t".join([str(int(f) + 1), f"{f / fps:.10g}", *(_num(v) for v in row)]))
+    return "\n".join(lines) + "\n"
+
+
+def save_trc(path: str | os.PathLike, names, positions: np.ndarray, fps: float, frame_index=None) -> None:
+    """Write :func:`trc_text` to ``path`` atomically (the file name on line 1 is ``path``'s)."""
+    from jaxmocap.io.export import atomic_write_text
+
+    text = trc_text(names, positions, fps, frame_index, os.path.basename(os.fspath(path)))
+    atomic_write_text(path, text)

@@ -44,6 +44,22 @@ _BLUR = np.asarray(
 )
 
 
+def _binary_row_blur() -> np.ndarray:
+    """The row pass of the blur on a binary image, tabulated: entry ``c`` (7 bits, bit ``i`` set where tap ``i``
+    reads 255) is ``uint8(Σ_i 255·b_i·w_i)`` accumulated in float32 in kernel order, exactly what the direct pass
+    computes for that neighbourhood."""
+    lut = np.zeros(1 << len(_BLUR), np.uint8)
+    for code in range(len(lut)):
+        acc = np.float32(0.0)
+        for i, w in enumerate(_BLUR):
+            acc = np.float32(acc + np.float32(255.0 if code >> i & 1 else 0.0) * w)
+        lut[code] = np.uint8(acc)
+    return lut
+
+
+_ROW_BLUR = _binary_row_blur()
+
+
 def edge_map(gray: np.ndarray, threshold: float = 16.0) -> np.ndarray:
     """bodytrack's edge map (§6.1) of a grey image ``(H, W) uint8`` → ``(H, W) uint8``, bit for bit.
 
@@ -51,6 +67,9 @@ def edge_map(gray: np.ndarray, threshold: float = 16.0) -> np.ndarray:
     2. ``B = 255`` where ``gx² + gy² ≥ threshold``, else 0, with a zero 1-pixel border;
     3. 7-tap blur along rows (x in [3, W−3)), truncated to uint8, then along columns (y in [3, H−3)), truncated
        again; the margins are zero. Float32 accumulation in kernel order, as the C++ does.
+
+    ``B`` is binary, so the row pass reads its result from a 128-entry table indexed by the 7 taps' bits
+    (:func:`_binary_row_blur`, the same float32 sums); the column pass accumulates directly.
     """
     I = np.asarray(gray)
     if I.ndim != 2 or I.dtype != np.uint8:
@@ -64,19 +83,19 @@ def edge_map(gray: np.ndarray, threshold: float = 16.0) -> np.ndarray:
     dl, dr = dn[:, :-2], dn[:, 2:]
     gx = -c8 * ul + c8 * ur - c4 * ml + c4 * mr - c8 * dl + c8 * dr
     gy = -c8 * ul - c4 * up[:, 1:-1] - c8 * ur + c8 * dl + c4 * dn[:, 1:-1] + c8 * dr
-    mag = gx * gx + gy * gy
-    B = np.zeros((H, W), np.uint8)
-    B[1:-1, 1:-1] = np.where(mag < np.float32(threshold), 0, 255).astype(np.uint8)
-    n = len(_BLUR) // 2
-
-    def row_pass(src):
-        s = src.astype(np.float32)
-        acc = np.zeros((src.shape[0], src.shape[1] - 2 * n), np.float32)
-        for i in range(2 * n + 1):
-            acc = acc + s[:, i : i + src.shape[1] - 2 * n] * _BLUR[i]
-        out = np.zeros_like(src)
-        out[:, n:-n] = acc.astype(np.uint8)  # C cast: truncation (acc is in [0, 255])
-        return out
-
-    tmp = row_pass(B)
-    return np.ascontiguousarray(row_pass(tmp.T).T)
+    bit = np.zeros((H, W), np.uint8)
+    bit[1:-1, 1:-1] = gx * gx + gy * gy >= np.float32(threshold)  # B / 255
+    k = len(_BLUR)
+    n = k // 2
+    code = np.zeros((H, W - 2 * n), np.uint8)
+    for i in range(k):
+        code |= bit[:, i : i + W - 2 * n] << i
+    tmp = np.zeros((H, W), np.uint8)
+    tmp[:, n:-n] = _ROW_BLUR[code]
+    s = tmp.astype(np.float32)
+    acc = np.zeros((H - 2 * n, W), np.float32)
+    for i in range(k):
+        acc = acc + s[i : i + H - 2 * n] * _BLUR[i]
+    out = np.zeros((H, W), np.uint8)
+    out[n:-n] = acc.astype(np.uint8)  # C cast: truncation (acc is in [0, 255])
+    return out

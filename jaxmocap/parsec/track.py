@@ -39,6 +39,7 @@ from jaxmocap.parsec import annealing
 from jaxmocap.parsec import likelihood as pl
 from jaxmocap.tracking.loop import TrackingLoop
 from jaxmocap.tracking.options import TrackOptions
+from jaxmocap.tracking.outputs import check_export_options
 from jaxmocap.tracking.progress import warn
 from jaxmocap.tracking.setup import frame_range
 
@@ -130,6 +131,7 @@ class ParsecSetup:
             raise ValueError("on_bad_frame must be 'skip' or 'stop'")
         self.o, self.source = o, source
         self.frames = frame_range(o.frames, source.num_frames)
+        check_export_options(o.smooth, o.bvh_units, source.fps)
         self.num_particles = DEFAULT_PARTICLES if o.particles is None else int(o.particles)
         self.layers = DEFAULT_LAYERS if o.layers is None else int(o.layers)
         if self.num_particles < 2:

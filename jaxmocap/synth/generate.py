@@ -1,12 +1,10 @@
 """Synthetic multi-view sequences from real motion capture, with exact ground truth.
 
-The subject is the **mocap skeleton itself**, dressed (:func:`dress`): every bone of non-zero length becomes a
-truncated cone with spherical caps from its parent joint to its child joint (end sites included, so the head,
-fingers, thumbs and toes have their bones), with radii by body part (:data:`ROLE_RADII`), and the head becomes a
-spheroid centred on the middle of the head bone (polar length :data:`HEAD_LENGTH`, equatorial radius
-:data:`HEAD_RADIUS`). Clothing colours are per limb (:data:`ROLE_COLOURS`, the same on both sides); head, neck
-and hands are skin-coloured. A tracker's body model (the ``body.toml`` written with the sequence, the
-``full25`` preset with the subject's measured lengths and these radii) is an approximation of that scene.
+The clip may use any skeleton: :func:`load_clip` recognises its evaluation joints, unit and up axis
+(:mod:`jaxmocap.io.skeletons`). The subject is the **mocap skeleton itself**, dressed (:mod:`jaxmocap.synth.dressing`):
+cones with spherical caps for the bones, a spheroid head, clothing colours per limb and skin-coloured head, neck
+and hands. A tracker's body model (the ``body.toml`` written with the sequence, the ``full25`` preset with the
+subject's measured lengths and these radii) is an approximation of that scene.
 
 Every view is ray-cast exactly per pixel (:func:`jaxmocap.geometry.render.render_view`), so depth, foreground mask and
 part labels agree with the calibration's projection model; then, on the host, Lambert shading under a world
@@ -17,20 +15,25 @@ millimetres; :func:`jaxmocap.geometry.render.virtual_depth`).
 
 Rigs and backgrounds: :mod:`jaxmocap.synth.stage`.
 
+Each view also gets its empty-scene plate (:mod:`jaxmocap.synth.plates`, ``views/<camera>/background.png``) and
+simulated OpenPose BODY_25B detections per frame (:mod:`jaxmocap.synth.detections`, ``views/<camera>/openpose/``),
+marked as simulated in ``meta.json``.
+
 Determinism: every random number comes from ``numpy.random.default_rng([seed, frame, view])`` (a stream per
-output image, independent of the order of work) or ``default_rng([seed, view])`` for a view's background, and
-every file is written byte-identically (:mod:`jaxmocap.io.sequence`).
+output image, independent of the order of work), ``default_rng([seed, frame, view, 2])`` for its simulated
+detections, ``default_rng([seed, view])`` for a view's background and ``default_rng([seed, 2²⁰, view, 3])`` for its
+plate's noise, and every file is written byte-identically
+(:mod:`jaxmocap.io.sequence`).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 import os
 import pathlib
 import shutil
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from importlib import resources
 
@@ -43,9 +46,24 @@ from jaxmocap.choices import parse_frames
 from jaxmocap.errors import MocapInputError
 from jaxmocap.geometry import body as body_mod
 from jaxmocap.geometry import camera, render
-from jaxmocap.io import calibration
+from jaxmocap.io import calibration, skeletons
 from jaxmocap.io import sequence as seqio
-from jaxmocap.io.mocap import Motion, body_dimensions_from_motion, eval_joints, eval_mapping
+from jaxmocap.io.mocap import JointSpec, Motion, eval_joints, forward_kinematics
+from jaxmocap.synth import detections as dets
+from jaxmocap.synth import plates, texture
+from jaxmocap.synth import scene as room_mod
+from jaxmocap.synth.dressing import (
+    HEAD_LENGTH,
+    HEAD_RADIUS,
+    ROLE_COLOURS,
+    ROLE_RADII,
+    Dressing,
+    body_dimensions,
+    dress,
+    dressing_points,
+    scene_primitives,
+    toe_points,
+)
 
 # the rig and background functions stay part of this module's API (__all__)
 from jaxmocap.synth.stage import (
@@ -66,6 +84,7 @@ __all__ = [
     "Dressing",
     "demo_clip",
     "load_motion",
+    "load_clip",
     "dress",
     "dressing_points",
     "scene_primitives",
@@ -83,48 +102,9 @@ __all__ = [
     "CAPS",
     "LIGHT",
     "CMU_LICENCE",
+    "BANDAI_LICENCE",
+    "default_licence",
 ]
-
-#: Cone radii (metres) at the parent and child end of a bone, by body part.
-ROLE_RADII: dict[str, tuple[float, float]] = {
-    "torso": (0.135, 0.135),
-    "pelvis": (0.10, 0.09),
-    "clavicle": (0.06, 0.055),
-    "upper_arm": (0.05, 0.04),
-    "forearm": (0.04, 0.03),
-    "hand": (0.03, 0.025),
-    "finger": (0.022, 0.018),
-    "thumb": (0.015, 0.012),
-    "thigh": (0.08, 0.06),
-    "shin": (0.055, 0.04),
-    "foot": (0.04, 0.035),
-    "toe": (0.035, 0.03),
-    "neck": (0.05, 0.05),
-    "limb": (0.04, 0.04),
-}
-
-#: Clothing colours (RGB in [0, 1]) by body part, the same for the left and right limb; skin for bare parts.
-ROLE_COLOURS: dict[str, tuple[float, float, float]] = {
-    "torso": (0.20, 0.30, 0.65),
-    "clavicle": (0.20, 0.30, 0.65),
-    "upper_arm": (0.70, 0.15, 0.15),
-    "forearm": (0.85, 0.60, 0.10),
-    "pelvis": (0.25, 0.25, 0.28),
-    "thigh": (0.15, 0.55, 0.25),
-    "shin": (0.45, 0.20, 0.55),
-    "foot": (0.12, 0.12, 0.12),
-    "toe": (0.12, 0.12, 0.12),
-    "limb": (0.10, 0.55, 0.60),
-    "neck": render.SKIN,
-    "hand": render.SKIN,
-    "finger": render.SKIN,
-    "thumb": render.SKIN,
-    "head": render.SKIN,
-}
-
-#: Head spheroid: polar length (chin to crown) and equatorial radius, metres.
-HEAD_LENGTH = 0.22
-HEAD_RADIUS = 0.09
 
 #: Rendered cones have spherical caps (rounded limbs without gaps at bent joints).
 CAPS = "sphere"
@@ -135,25 +115,6 @@ AMBIENT = 0.35
 
 #: Period (seconds) of the global illumination change.
 ILLUMINATION_PERIOD = 4.0
-
-# Body part of a bone from its (lower-case) name, first match wins.
-_ROLE_WORDS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("pelvis", ("hipjoint", "pelvis")),
-    ("torso", ("hips", "root", "back", "spine", "chest", "thorax", "abdomen", "torso")),
-    ("toe", ("toe",)),
-    ("foot", ("foot", "ankle")),
-    ("finger", ("finger", "index", "middle", "ring", "pinky")),
-    ("thumb", ("thumb",)),
-    ("hand", ("hand", "wrist", "palm")),
-    ("forearm", ("radius", "forearm", "elbow", "ulna")),
-    ("clavicle", ("clavicle", "collar")),
-    ("upper_arm", ("humerus", "shoulder", "arm")),
-    ("shin", ("tibia", "knee", "shin", "calf")),
-    ("thigh", ("femur", "upleg", "thigh", "hip")),
-    ("shin", ("leg",)),
-    ("neck", ("neck",)),
-    ("head", ("head",)),
-)
 
 _DEMO = ("02_01.amc", "02.asf")
 
@@ -179,16 +140,27 @@ def _find_asf(amc: pathlib.Path) -> pathlib.Path:
     raise MocapInputError(amc, "cannot tell which .asf skeleton goes with this .amc motion: pass it (--asf)")
 
 
-def load_motion(
-    path: str | os.PathLike | Motion, asf: str | os.PathLike | None = None, scale: float | None = None
-) -> Motion:
-    """A :class:`~jaxmocap.io.mocap.Motion` from a ``.bvh`` file (``scale`` metres per unit, default the CMU
-    conversion's :data:`jaxmocap.io.bvh.CMU_BVH_SCALE`), an ``.amc`` file with its ``asf`` skeleton (found next
-    to it when not given; ``scale`` default from the ASF units) or ``"demo"`` (:func:`demo_clip`)."""
-    from jaxmocap.io import asfamc, bvh
+def load_clip(
+    path: str | os.PathLike | Motion,
+    asf: str | os.PathLike | None = None,
+    scale: float | None = None,
+    mapping: Mapping[str, JointSpec] | str | os.PathLike | None = None,
+    up_axis: str | None = None,
+) -> tuple[Motion, skeletons.Recognition]:
+    """A clip of any skeleton, recognised and normalised (:func:`jaxmocap.io.skeletons.load_mocap`):
+    ``(motion, recognition)``.
 
+    ``path``: a ``.bvh`` file, an ``.amc`` file with its ``asf`` skeleton (found next to it when not given),
+    ``"demo"`` (:func:`demo_clip`) or a :class:`~jaxmocap.io.mocap.Motion` (recognised and normalised as it is);
+    ``scale`` metres per file unit and ``up_axis`` are detected for a BVH unless given; ``mapping`` (a mapping
+    or a TOML file) names evaluation joints the names and the tree's shape would not place."""
     if isinstance(path, Motion):
-        return path
+        given = skeletons.load_mapping(mapping) if isinstance(mapping, str | os.PathLike) else mapping
+        try:
+            rec = skeletons.recognise(path, given)
+            return skeletons.normalise(path, rec.mapping), rec
+        except ValueError as e:
+            raise MocapInputError(path.source or None, str(e)) from None
     if os.fspath(path) == "demo" and not os.path.isfile("demo"):
         path, default_asf = demo_clip()
         asf = default_asf if asf is None else asf
@@ -196,183 +168,20 @@ def load_motion(
     if not p.is_file():
         raise MocapInputError(p, "no such motion file")
     ext = p.suffix.lower()
-    if ext == ".bvh":
-        return bvh.load_bvh(p, scale=bvh.CMU_BVH_SCALE if scale is None else float(scale))
-    if ext == ".amc":
-        skel = pathlib.Path(asf) if asf is not None else _find_asf(p)
-        return asfamc.load_asfamc(skel, p, scale=scale)
-    raise MocapInputError(p, f"unknown motion format {ext!r} (expected .bvh or .amc with an .asf)")
+    if ext == ".amc" and asf is None:
+        asf = _find_asf(p)
+    if ext not in (".bvh", ".amc"):
+        raise MocapInputError(p, f"unknown motion format {ext!r} (expected .bvh or .amc with an .asf)")
+    return skeletons.load_mocap(p, asf=asf, scale=scale, up_axis=up_axis, mapping=mapping)
 
 
-# ---------------------------------------------------------------------------------------------------------------
-# Dressing the skeleton
-
-
-def _role(name: str) -> str:
-    low = name.lower()
-    for role, words in _ROLE_WORDS:
-        if any(w in low for w in words):
-            return role
-    return "limb"
-
-
-@dataclasses.dataclass(frozen=True)
-class Dressing:
-    """How a skeleton is dressed; static (hashable) except for the radii.
-
-    Points are the ``J`` joints, then the ``E`` end sites, then two head points (the ends of the head
-    spheroid's polar axis); ``parents`` has one entry per point (``−1`` for the root and the head points).
-    ``bones``: child point of each cone (label order), ``part_names`` / ``part_roles`` per label (cones, then
-    ``"head"``), ``radius_start``/``radius_end`` ``(C,)``, ``head_bone``: ``(head joint, its end site point)``.
-    """
-
-    parents: tuple[int, ...]
-    bones: tuple[int, ...]
-    part_names: tuple[str, ...]
-    part_roles: tuple[str, ...]
-    radius_start: tuple[float, ...]
-    radius_end: tuple[float, ...]
-    head_bone: tuple[int, int]
-    head_length: float = HEAD_LENGTH
-    head_radius: float = HEAD_RADIUS
-
-    @property
-    def num_cones(self) -> int:
-        return len(self.bones)
-
-    @property
-    def head_points(self) -> tuple[int, int]:
-        n = len(self.parents)
-        return (n - 2, n - 1)
-
-    def colours(self) -> np.ndarray:
-        """``(C + 1, 3)`` RGB in [0, 1] per label."""
-        return np.asarray([ROLE_COLOURS.get(r, ROLE_COLOURS["limb"]) for r in self.part_roles], np.float64)
-
-
-def dress(motion: Motion, head_length: float = HEAD_LENGTH, head_radius: float = HEAD_RADIUS) -> Dressing:
-    """Cones for every bone of ``motion`` (parent → child, end sites included) of non-zero rest length, bones
-    repeating another one's end points left out; the head bone (the one named ``head``) becomes the spheroid.
-
-    A bone is named after its parent joint (BVH and ASF name a bone after the joint that moves it), with
-    ``>child`` appended when the parent starts several bones; its body part comes from the name (and the child's
-    for bones leaving the torso towards the legs or arms).
-    """
-    from jaxmocap.io.mocap import rest_positions
-
-    X, E = rest_positions(motion)
-    names = list(motion.joint_names)
-    J = len(names)
-    child_names = names + [names[p] + "_end" for p in motion.end_parents]
-    parents = list(motion.parents) + list(motion.end_parents)
-    pts = np.concatenate([X, E], 0) if len(E) else X
-    mapping = eval_mapping(motion)
-    head_spec = mapping["head"]
-    if isinstance(head_spec, str):
-        raise ValueError(f"{motion.source}: the head joint needs an end site")
-    head_joint = motion.joint_index(head_spec[1])
-    head_end = J + motion.end_parents.index(head_joint)
-    kept, seen = [], []
-    for c in range(len(parents)):
-        p = parents[c]
-        if p < 0 or c == head_end or np.linalg.norm(pts[c] - pts[p]) <= 1e-6:
-            continue
-        ends = (pts[p], pts[c])
-        if any(np.allclose(ends, s, atol=1e-6) for s in seen):
-            continue
-        seen.append(ends)
-        kept.append(c)
-    n_children = {p: sum(parents[c] == p for c in kept) for p in range(J)}
-    bones, part_names, roles, ra, rb = [], [], [], [], []
-    for c in kept:
-        p = parents[c]
-        role = _role(names[p])
-        child_role = _role(child_names[c])
-        if role == "torso" and child_role in ("thigh", "pelvis"):
-            role = "pelvis"
-        elif role == "torso" and child_role in ("clavicle", "upper_arm"):
-            role = "clavicle"
-        elif role == "head":
-            role = "neck"
-        r0, r1 = ROLE_RADII.get(role, ROLE_RADII["limb"])
-        bones.append(c)
-        part_names.append(names[p] if n_children[p] <= 1 else f"{names[p]}>{child_names[c]}")
-        roles.append(role)
-        ra.append(r0)
-        rb.append(r1)
-    parents = parents + [-1, -1]
-    return Dressing(
-        parents=tuple(parents),
-        bones=tuple(bones),
-        part_names=tuple(part_names) + ("head",),
-        part_roles=tuple(roles) + ("head",),
-        radius_start=tuple(ra),
-        radius_end=tuple(rb),
-        head_bone=(head_joint, head_end),
-        head_length=float(head_length),
-        head_radius=float(head_radius),
-    )
-
-
-def dressing_points(motion: Motion, dressing: Dressing, frames: Sequence[int] | np.ndarray) -> np.ndarray:
-    """``(T, P, 3)`` points of :class:`Dressing` at the source frames ``frames``: joints, end sites, and the head
-    spheroid's axis ends ``m ± (head_length/2) â`` with ``m`` the middle of the head bone and ``â`` its
-    direction."""
-    idx = np.asarray(frames, dtype=np.int64)
-    ends = motion.end_positions if motion.end_positions is not None else np.zeros((motion.num_frames, 0, 3))
-    pts = np.concatenate([motion.positions[idx], ends[idx]], axis=1)
-    hj, he = dressing.head_bone
-    a, b = pts[:, hj], pts[:, he]
-    axis = b - a
-    axis = axis / np.maximum(np.linalg.norm(axis, axis=-1, keepdims=True), 1e-12)
-    mid = 0.5 * (a + b)
-    half = 0.5 * dressing.head_length
-    return np.concatenate([pts, (mid - half * axis)[:, None], (mid + half * axis)[:, None]], axis=1)
-
-
-@functools.partial(jax.jit, static_argnames=("dressing",))
-def _scene(points: jnp.ndarray, dressing: Dressing) -> render.Primitives:
-    return render.primitives_from_skeleton(
-        points,
-        dressing.parents,
-        jnp.asarray(dressing.radius_start, points.dtype),
-        jnp.asarray(dressing.radius_end, points.dtype),
-        bones=dressing.bones,
-        head=dressing.head_points,
-        head_radius=dressing.head_radius,
-    )
-
-
-def scene_primitives(points: np.ndarray, dressing: Dressing) -> render.Primitives:
-    """World :class:`jaxmocap.geometry.render.Primitives` of one frame's points ``(P, 3)`` (float32): ``C`` cones in
-    :attr:`Dressing.bones` order, then the head spheroid (label ``C``)."""
-    return _scene(jnp.asarray(points, jnp.float32), dressing)
-
-
-def body_dimensions(motion: Motion, dressing: Dressing) -> dict[str, float]:
-    """``full25`` dimensions of the dressed subject: lengths measured on the skeleton
-    (:func:`jaxmocap.io.mocap.body_dimensions_from_motion`), the radii of the dressing, and the head of the
-    dressing (``head_length``; ``neck_length`` lowered so that the model's head centre stays the middle of the
-    head bone, the ground-truth ``head`` joint)."""
-    dims = body_dimensions_from_motion(motion)
-    bone_len = dims["head_length"]
-    dims["head_length"] = dressing.head_length
-    dims["head_radius"] = dressing.head_radius
-    dims["neck_length"] = max(0.0, dims["neck_length"] - 0.5 * (dressing.head_length - bone_len))
-    r = ROLE_RADII
-    dims.update(
-        torso_radius_bottom=r["torso"][0],
-        torso_radius_top=r["torso"][1],
-        upper_arm_radius_top=r["upper_arm"][0],
-        upper_arm_radius_bottom=r["upper_arm"][1],
-        forearm_radius_top=r["forearm"][0],
-        forearm_radius_bottom=r["forearm"][1],
-        thigh_radius_top=r["thigh"][0],
-        thigh_radius_bottom=r["thigh"][1],
-        shin_radius_top=r["shin"][0],
-        shin_radius_bottom=r["shin"][1],
-    )
-    return dims
+def load_motion(
+    path: str | os.PathLike | Motion, asf: str | os.PathLike | None = None, scale: float | None = None
+) -> Motion:
+    """The motion of :func:`load_clip` (a :class:`~jaxmocap.io.mocap.Motion` is returned as it is)."""
+    if isinstance(path, Motion):
+        return path
+    return load_clip(path, asf, scale)[0]
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -421,10 +230,10 @@ def _form_image(normal, label, colours, light, background, illumination, ambient
     :func:`jaxmocap.geometry.render.shade` / :func:`jaxmocap.geometry.render.composite`, fused in one XLA loop):
     ``I = clip(a · colour[label] · (ambient + (1 − ambient) max(0, n·l̂)), 0, 1)`` on the body and
     ``clip(a · background, 0, 1)`` elsewhere. ``normal (H, W, 3)`` camera frame, ``label (H, W)``, ``colours
-    (L, 3)``, ``light (3,)`` unit in the camera frame, ``background (H, W, 3)`` in [0, 1]. Returns float32
-    ``(H, W, 3)`` in [0, 1]."""
+    (L, 3)`` per label or ``(H, W, 3)`` per pixel (a textured albedo), ``light (3,)`` unit in the camera frame,
+    ``background (H, W, 3)`` in [0, 1]. Returns float32 ``(H, W, 3)`` in [0, 1]."""
     lam = jnp.maximum(normal[..., 0] * light[0] + normal[..., 1] * light[1] + normal[..., 2] * light[2], 0.0)
-    col = colours[jnp.maximum(label, 0)]
+    col = colours if colours.ndim == 3 else colours[jnp.maximum(label, 0)]
     fg = illumination * col * (ambient + (1.0 - ambient) * lam)[..., None]
     out = jnp.where((label >= 0)[..., None], fg, illumination * background)
     return jnp.clip(out, 0.0, 1.0).astype(jnp.float32)
@@ -445,6 +254,7 @@ def view_images(
     noise: float = 0.01,
     depth_smooth: float = 1.5,
     depth_noise: float = 0.02,
+    albedos: Sequence[jnp.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The images of one view at one frame from its ray-cast renders.
 
@@ -455,14 +265,16 @@ def view_images(
       background: ``(H, W, 3)`` float in [0, 1]; illumination: global illumination factor.
       noise: RGB noise standard deviation (1 = full scale); depth_smooth, depth_noise: the virtual depth sensor
         (:func:`jaxmocap.geometry.render.virtual_depth`).
+      albedos: per render a ``(H, W, 3)`` albedo replacing ``colours`` (textured clothing).
 
     Returns:
       ``rgb (H, W, 3)`` uint8 — the mean of the sub-frames' shaded images plus ``N(0, noise²)``, rounded —,
       ``depth (H, W)`` uint16 millimetres and ``labels (H, W)`` int32 (−1 background) of the first render.
     """
     image = None
-    for r in renders:
-        img = _form_image(r.normal, r.label, colours, light, background, illumination, AMBIENT)
+    for k, r in enumerate(renders):
+        col = colours if albedos is None else albedos[k]
+        img = _form_image(r.normal, r.label, col, light, background, illumination, AMBIENT)
         image = img if image is None else image + img
     image = np.asarray(image) * np.float32(255.0 / len(renders))
     rgb8 = _quantise(image + rng.standard_normal(image.shape, dtype=np.float32) * np.float32(255.0 * noise))
@@ -471,13 +283,84 @@ def view_images(
     return rgb8, depth_mm, np.asarray(first.label)
 
 
-#: Licence line recorded for a clip by default: the CMU database's acknowledgement (every skeleton the project
-#: maps to the evaluation joints is a CMU one); pass ``licence=`` for clips from elsewhere.
+#: Licence line recorded for a clip of a CMU skeleton: the CMU database's acknowledgement.
 CMU_LICENCE = (
     "CMU Graphics Lab Motion Capture Database (mocap.cs.cmu.edu), free for research and commercial use, not for "
     "resale: 'The data used in this project was obtained from mocap.cs.cmu.edu. The database was created with "
     "funding from NSF EIA-0196217.'"
 )
+
+
+#: Licence line recorded for a clip of the Bandai-Namco research set.
+BANDAI_LICENCE = "Bandai Namco Research Motion Dataset, CC BY-NC 4.0 (non-commercial use, attribution)"
+
+
+def default_licence(family: str) -> str:
+    """The licence line of a clip whose skeleton was recognised as ``family`` (:mod:`jaxmocap.io.skeletons`):
+    the CMU terms, the Bandai-Namco set's, or a request to state it."""
+    passes = family.split("+")
+    if any(p.startswith("cmu") for p in passes):
+        return CMU_LICENCE
+    if "bandai_namco" in passes:
+        return BANDAI_LICENCE
+    return "not stated (pass --licence)"
+
+
+def detections_path(root: str | os.PathLike, view: str, frame: int) -> pathlib.Path:
+    """``root/views/<view>/openpose/<view>_NNNNNNNNNNNN_keypoints.json`` (OpenPose's own naming), folder created."""
+    folder = pathlib.Path(root) / seqio.VIEWS / view / "openpose"
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder / f"{view}_{int(frame):012d}_keypoints.json"
+
+
+def _clothing(m: Motion, dressing: Dressing, colours, seed: int, offset: np.ndarray, cams: camera.Rig):
+    """``albedo(render, view, source frame) -> (H, W, 3)`` of :mod:`jaxmocap.synth.texture` for this clip."""
+    W, X = forward_kinematics(m.parents, m.translations(), m.local_rotations)
+    X = X + offset
+    J = m.num_joints
+    joint_of, axes = [], []
+    for c in dressing.bones:  # the joint that carries each cone, and the cone's direction in its frame
+        p = dressing.parents[c]
+        joint_of.append(p)
+        axes.append(m.offsets[c] if c < J else m.end_offsets[c - J])
+    hj, he = dressing.head_bone
+    joint_of.append(hj)
+    axes.append(m.offsets[he] if he < J else m.end_offsets[he - J])
+    waves, phases, amps = (
+        jnp.asarray(a, jnp.float32)
+        for a in texture.texture_waves(dressing.part_roles, np.asarray(axes), seed)
+    )
+    rays = [
+        jnp.asarray(render.pixel_rays(cams.K[v], cams.dist[v], cams.image_size[v]))
+        for v in range(cams.num_views)
+    ]
+    Rv = [jnp.asarray(cams.R[v], jnp.float32) for v in range(cams.num_views)]
+    tv = [jnp.asarray(cams.t[v], jnp.float32) for v in range(cams.num_views)]
+    idx = np.asarray(joint_of)
+
+    def albedo(r: render.Render, v: int, frame: int) -> jnp.ndarray:
+        fr = jnp.asarray(W[frame, idx], jnp.float32)
+        fx = jnp.asarray(X[frame, idx], jnp.float32)
+        return texture.textured_albedo(
+            r.depth, r.label, rays[v], Rv[v], tv[v], fr, fx, colours, waves, phases, amps
+        )
+
+    return albedo
+
+
+def _room(cams: camera.Rig, centre, light_world, points, seed: int, clutter: float):
+    """The room of :mod:`jaxmocap.synth.scene` seen by every camera, and its shadow caster covering ``points
+    (T, P, 3)``."""
+    light = light_world / np.linalg.norm(light_world)
+    centres = np.asarray(camera.camera_centres(cams.to_jax(jnp.float32)), np.float64)
+    room = room_mod.make_room(centre, centres, seed, clutter)
+    views = [
+        room_mod.room_view(room, cams.K[v], cams.dist[v], cams.R[v], cams.t[v], cams.image_size[v], light)
+        for v in range(cams.num_views)
+    ]
+    aim = np.asarray(centre, np.float64) + [0.0, 0.0, 0.9]
+    radius = float(np.linalg.norm(points.reshape(-1, 3) - aim, axis=-1).max()) + 0.3
+    return views, room_mod.ShadowCaster(aim, radius, light, views)
 
 
 def _prepare_output(out: pathlib.Path, overwrite: bool) -> None:
@@ -529,6 +412,8 @@ def synthesize(
     rig: str | os.PathLike | camera.Rig = "stereo",
     asf: str | os.PathLike | None = None,
     scale: float | None = None,
+    mapping: Mapping[str, JointSpec] | str | os.PathLike | None = None,
+    up_axis: str | None = None,
     frames: str | tuple[int | None, int | None] | None = None,
     fps: float = 30.0,
     size: str | tuple[int, int] | None = None,
@@ -540,6 +425,8 @@ def synthesize(
     depth_smooth: float = 1.5,
     illumination: float = 0.0,
     blur: int = 1,
+    clothing: str = "plain",
+    detections: bool = True,
     overwrite: bool = False,
     licence: str | None = None,
     progress: Callable[[int, int], None] | None = None,
@@ -549,34 +436,38 @@ def synthesize(
 
     Args:
       motion: a ``.bvh``/``.amc`` path, a :class:`~jaxmocap.io.mocap.Motion`, or ``"demo"``
-        (:func:`load_motion`); ``asf``, ``scale``: see :func:`load_motion`.
+        (:func:`load_clip`); ``asf``, ``scale``, ``mapping``, ``up_axis``: see :func:`load_clip`.
       rig: a preset name (:data:`PRESETS`), a calibration file, or a :class:`~jaxmocap.geometry.camera.Rig`.
       frames: source frame range ``"A:B"`` (default the whole clip); ``fps``: output rate, the source is
         subsampled every ``round(source fps / fps)`` frames.
       size: ``(w, h)`` or ``"WxH"``: image size (presets default 640×480; a calibration is rescaled).
       seed: seeds every random number (noise, clutter, illumination phase).
-      background: ``"photo"``, ``"plain"`` or an image path; clutter: procedural clutter density (0–1 or
-        none/low/medium/high).
+      background: ``"photo"``, ``"plain"`` or an image path (per-view backdrops), or ``"room"``: a 3D room seen
+        consistently by every camera, in which the body casts its shadow (:mod:`jaxmocap.synth.scene`);
+        clutter: procedural clutter density (0–1 or none/low/medium/high), on the walls for a room.
       noise: RGB sensor noise standard deviation (image units, 1 = full scale).
       depth_noise: depth noise standard deviation (metres); depth_smooth: its smoothing (pixels).
       illumination: amplitude ``A`` of a global illumination change ``1 + A sin(2π t / 4 s + φ)``.
       blur: number of consecutive source frames averaged per image (motion blur), centred on the frame;
         mask, depth and labels are those of the central frame.
+      clothing: ``"plain"`` (one colour per body part) or ``"textured"`` (a solid texture per garment fixed to
+        the bones, :mod:`jaxmocap.synth.texture`).
+      detections: write simulated OpenPose BODY_25B detections per view and frame
+        (:mod:`jaxmocap.synth.detections`, in ``views/<camera>/openpose/``).
       overwrite: replace an existing sequence in ``out``.
-      licence: the clip's licence line for ``meta.json`` (default :data:`CMU_LICENCE`).
+      licence: the clip's licence line for ``meta.json`` (default :func:`default_licence` of its skeleton).
       progress: called as ``progress(done, total)`` after each frame.
     """
-    m = load_motion(motion, asf, scale)
-    try:
-        ej_all = eval_joints(m)
-    except KeyError as e:
-        raise MocapInputError(m.source or None, str(e.args[0])) from None
+    m, rec = load_clip(motion, asf, scale, mapping, up_axis)
+    ej_all = eval_joints(m, rec.mapping)
     if not (fps > 0 and math.isfinite(fps)):
         raise ValueError(f"fps must be positive, got {fps}")
     if fps > m.fps * (1 + 1e-9):
         raise ValueError(f"fps {fps} exceeds the clip's {m.fps}")
     if int(blur) < 1:
         raise ValueError("blur must be at least 1 frame")
+    if clothing not in ("plain", "textured"):
+        raise ValueError(f"clothing must be plain or textured, got {clothing!r}")
     for what, val in (("noise", noise), ("depth_noise", depth_noise), ("depth_smooth", depth_smooth)):
         if not (val >= 0 and math.isfinite(val)):
             raise ValueError(f"{what} must be a non-negative number, got {val}")
@@ -587,7 +478,7 @@ def synthesize(
     step = max(1, int(round(m.fps / fps)))
     src = np.arange(a, b, step)
     T = len(src)
-    dressing = dress(m)
+    dressing = dress(m, rec.mapping)
     points = dressing_points(m, dressing, np.arange(m.num_frames))
     joints = ej_all[src]
     blur_lo = max(0, a - (int(blur) - 1) // 2)
@@ -597,18 +488,36 @@ def synthesize(
     out = pathlib.Path(out)
     _prepare_output(out, overwrite)
 
-    colours = jnp.asarray(dressing.colours(), jnp.float32)
+    palette = texture.TEXTURED_COLOURS if clothing == "textured" else None
+    colours = jnp.asarray(dressing.colours(palette), jnp.float32)
     c, f, left = subject_frame(joints)
     light_world = LIGHT[0] * f + LIGHT[1] * left + LIGHT[2] * np.array([0.0, 0.0, 1.0])
     phase = float(np.random.default_rng([int(seed), 1 << 20]).uniform(0, 2 * math.pi))
     V = cams.num_views
-    backgrounds = [
-        jnp.asarray(background_image(background, cams.image_size[v], v, seed, clutter), jnp.float32) / 255.0
-        for v in range(V)
-    ]
     K, dist, Rv, tv = (np.asarray(x, np.float64) for x in (cams.K, cams.dist, cams.R, cams.t))
+    room_views = caster = None
+    if background == "room":
+        room_views, caster = _room(cams, c, light_world, points[blur_lo : b + int(blur)], seed, clutter)
+        backgrounds = [jnp.asarray(rv.lit) for rv in room_views]
+    else:
+        backgrounds = [
+            jnp.asarray(background_image(background, cams.image_size[v], v, seed, clutter), jnp.float32)
+            / 255.0
+            for v in range(V)
+        ]
     lights = [jnp.asarray(Rv[v] @ light_world / np.linalg.norm(light_world), jnp.float32) for v in range(V)]
     half = (int(blur) - 1) // 2
+    detector = None
+    if detections:
+        kp, normals = dets.keypoints_3d(
+            ej_all + offset,
+            points[:, list(dressing.head_points)],
+            dressing.head_radius,
+            points[:, list(toe_points(m, rec.mapping))],
+        )
+        detector = dets.Detector(K, dist, Rv, tv, cams.image_size, kp, normals, int(blur))
+
+    albedo_of = _clothing(m, dressing, colours, seed, offset, cams) if clothing == "textured" else None
 
     def render_frame(i: int):
         prims = scene_primitives(points[i], dressing)
@@ -624,6 +533,11 @@ def synthesize(
     pool = ThreadPoolExecutor(max_workers=2)
     writes = []
     try:
+        for v in range(V):
+            plate = plates.plate_image(
+                np.random.default_rng([int(seed), 1 << 20, v, 3]), backgrounds[v], noise
+            )
+            writes.append(pool.submit(seqio.write_rgb, plates.plate_path(out, cams.names[v]), plate))
         pending = render_frame(int(src[0]))
         for k, i in enumerate(src):
             i = int(i)
@@ -636,12 +550,26 @@ def synthesize(
                 2 * math.pi * (k * step / m.fps) / ILLUMINATION_PERIOD + phase
             )
             subs = [min(max(i + d - half, 0), m.num_frames - 1) for d in range(int(blur))]
+            if detector is not None:
+                r_a, r_b = np.asarray(dressing.radius_start), np.asarray(dressing.radius_end)
+                own = dets.own_labels(
+                    kp[i], scene["cone_a"][-1], scene["cone_b"][-1], r_a, r_b, dressing.num_cones
+                )
             others = {s: render_frame(s)[1] for s in subs if s != i}
+            light_depth = caster.depth(prims, CAPS) if caster is not None else None
             for v in range(V):
                 renders = [current[v] if s == i else others[s][v] for s in subs]
                 rng = np.random.default_rng([int(seed), k, v])
+                bg = backgrounds[v]
+                if caster is not None:
+                    bg = jnp.asarray(room_views[v].image(caster.shadow(light_depth, v)))
+                albedos = (
+                    None
+                    if albedo_of is None
+                    else [albedo_of(r, v, s) for r, s in zip(renders, subs, strict=True)]
+                )
                 rgb8, depth_mm, labels = view_images(
-                    rng, renders, colours, lights[v], backgrounds[v], illum, noise, depth_smooth, depth_noise
+                    rng, renders, colours, lights[v], bg, illum, noise, depth_smooth, depth_noise, albedos
                 )
                 name = cams.names[v]
                 writes += [
@@ -650,6 +578,9 @@ def synthesize(
                     pool.submit(seqio.write_depth, seqio.frame_path(out, name, "depth", k), depth_mm),
                     pool.submit(seqio.write_labels, seqio.frame_path(out, name, "labels", k), labels),
                 ]
+                if detector is not None:
+                    found = detector.frame(np.random.default_rng([int(seed), k, v, 2]), v, i, labels, own)
+                    writes.append(pool.submit(dets.write_openpose_json, detections_path(out, name, k), found))
             while len(writes) > 16 * V:
                 writes.pop(0).result()
             if progress is not None:
@@ -660,7 +591,7 @@ def synthesize(
         pool.shutdown(wait=True, cancel_futures=True)
 
     seqio.write_calibration(out, cams)
-    dims = body_dimensions(m, dressing)
+    dims = body_dimensions(m, dressing, rec.mapping)
     body_mod.save_body(out / seqio.BODY, "full25", dims)
     seqio.write_groundtruth(
         out,
@@ -683,7 +614,8 @@ def synthesize(
         "generator": f"jaxmocap {__version__} synth",
         "source": {
             "clip": pathlib.Path(m.source).name if m.source else "",
-            "licence": CMU_LICENCE if licence is None else str(licence),
+            "licence": default_licence(rec.family) if licence is None else str(licence),
+            "skeleton": rec.to_json(),
             "fps": m.fps,
             "frames": [a, b],
             "step": step,
@@ -694,16 +626,27 @@ def synthesize(
         "world_offset": offset,
         "seed": int(seed),
         "background": os.fspath(background)
-        if background in ("photo", "plain")
+        if background in ("photo", "plain", "room")
         else pathlib.Path(background).name,
         "clutter": clutter,
         "noise": {"rgb_sigma": noise, "depth_sigma_m": depth_noise, "depth_smooth_px": depth_smooth},
         "illumination_amplitude": illumination,
         "motion_blur_frames": int(blur),
+        "clothing": clothing,
+        "light": (light_world / np.linalg.norm(light_world)).round(6),
+        "plates": f"views/<camera>/{plates.PLATE}",
+        "detections": {
+            "simulated": True,
+            "format": "OpenPose BODY_25B JSON",
+            "path": "views/<camera>/openpose/<camera>_NNNNNNNNNNNN_keypoints.json",
+            "model": dataclasses.asdict(detector.model),
+        }
+        if detector is not None
+        else None,
         "caps": CAPS,
         "parts": list(dressing.part_names),
         "part_roles": list(dressing.part_roles),
-        "part_colours": dressing.colours().round(4),
+        "part_colours": np.asarray(colours, np.float64).round(4),
         "body": seqio.BODY,
         "joint_names": list(body_mod.EVAL_JOINTS),
     }

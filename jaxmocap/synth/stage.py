@@ -222,7 +222,7 @@ def _fill(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return cv2.resize(image, (w, h), interpolation=interp)
 
 
-def _clutter(rng: np.random.Generator, image: np.ndarray, level: float) -> np.ndarray:
+def draw_clutter(rng: np.random.Generator, image: np.ndarray, level: float) -> np.ndarray:
     """Draw ``round(40·level)`` random striped rectangles and ellipses, their colours half-way between a random
     colour and the image's mean colour (muted, like furniture and posters)."""
     h, w = image.shape[:2]
@@ -278,5 +278,5 @@ def background_image(
         base = _fill(img[..., ::-1], size)
     base = np.ascontiguousarray(base)
     if clutter > 0:
-        base = _clutter(np.random.default_rng([int(seed), int(view)]), base, float(clutter))
+        base = draw_clutter(np.random.default_rng([int(seed), int(view)]), base, float(clutter))
     return base

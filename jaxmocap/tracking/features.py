@@ -8,6 +8,7 @@ triangulated skin blobs when a cue reads them), adds the silhouette samples of t
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from typing import NamedTuple
 
@@ -19,11 +20,12 @@ from jaxmocap.features.observation import Observation
 from jaxmocap.features.pipeline import FeatureConfig, FeatureExtractor
 from jaxmocap.features.resample import downsample as downsample_image
 from jaxmocap.io.sources import BadFrame, FrameData
+from jaxmocap.io.subject import subject_box
 from jaxmocap.likelihood import cues as cues_mod
 from jaxmocap.likelihood.coverage import silhouette_samples
 from jaxmocap.tracking.options import FOREGROUNDS
 
-__all__ = ["FeatureBuilder", "TrackObservation"]
+__all__ = ["FeatureBuilder", "TrackObservation", "median_background"]
 
 
 class TrackObservation(NamedTuple):
@@ -47,11 +49,62 @@ class _Extractor(FeatureExtractor):
         return super().foreground_masks(frames, depth)
 
 
+def _scene_image(path, shape) -> np.ndarray | None:
+    """The scene image at ``path`` cut to ``shape (H, W)`` (a calibrated image larger by codec padding), or None."""
+    import cv2
+
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if img is None or img.shape[0] < shape[0] or img.shape[1] < shape[1]:
+        return None
+    return img[: shape[0], : shape[1]].astype(np.float32)
+
+
+def median_background(source, frames: Sequence[int], num: int = 15) -> list[np.ndarray]:
+    """Static background per view (BGR uint8, full size): the per-pixel median of up to ``num`` readable frames
+    spread over ``frames``. With detections (a frame's ``keypoints``), each frame's subject box
+    (:func:`jaxmocap.io.subject.subject_box`) is left out, and where the subject covers a pixel in every frame the source's scene image of the view
+    (``source.scene_images``, e.g. a Pose2Sim project's ``calibration/extrinsics``) fills it when it has one, else
+    the plain median."""
+    pick = sorted({frames[int(i)] for i in np.round(np.linspace(0, len(frames) - 1, min(num, len(frames))))})
+    stacks, keeps = None, None
+    for t in pick:
+        try:
+            fd = source.read(t, masks=False)
+        except BadFrame:
+            continue
+        if stacks is None:
+            stacks, keeps = [[] for _ in fd.images], [[] for _ in fd.images]
+        for v, im in enumerate(fd.images):
+            stacks[v].append(im)
+            kp = None if fd.keypoints is None else np.asarray(fd.keypoints[v])
+            keeps[v].append(subject_box(kp, im.shape[:2]))
+    if stacks is None:
+        raise MocapInputError(None, "no readable frame to estimate the background from")
+    if not getattr(source, "has_keypoints", False):
+        return [np.median(np.stack(s), axis=0).astype(np.uint8) for s in stacks]
+    scenes = getattr(source, "scene_images", None)
+    out = []
+    for v, (s, k) in enumerate(zip(stacks, keeps, strict=True)):
+        S, K = np.stack(s), np.stack(k)
+        fill = _scene_image(scenes[v], S.shape[1:3]) if scenes else None
+        med = np.empty(S.shape[1:], np.float32)
+        for r in range(0, S.shape[1], 64):  # in bands of rows: a float copy of the whole stack is large
+            band, keep = S[:, r : r + 64].astype(np.float32), K[:, r : r + 64]
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN pixels: filled below
+                m = np.nanmedian(np.where(keep[..., None], band, np.nan), axis=0)
+            hole = ~np.any(keep, axis=0)
+            other = np.median(band, axis=0) if fill is None else fill[r : r + 64]
+            med[r : r + 64] = np.where(hole[..., None], other, m)
+        out.append(np.clip(np.round(med), 0, 255).astype(np.uint8))
+    return out
+
+
 class FeatureBuilder:
     """Frames → :class:`TrackObservation` (image maps through :class:`jaxmocap.features.FeatureExtractor`).
 
-    ``foreground``: ``mask`` (the source's masks), ``median`` (static background = per-pixel median of up to 15
-    frames spread over the input), ``mog2`` (adaptive; stateful, so not reproduced exactly by ``--resume``),
+    ``foreground``: ``mask`` (the source's masks), ``median`` (static background: :func:`median_background`),
+    ``mog2`` (adaptive; stateful, so not reproduced exactly by ``--resume``),
     ``none``; ``auto`` = ``mask`` when the source has masks, else ``median``.
     """
 
@@ -97,23 +150,7 @@ class FeatureBuilder:
         self.coverage = "coverage" in names
         if foreground == "median":
             frames = list(range(source.num_frames)) if frames is None else list(frames)
-            pick = sorted(
-                {frames[int(i)] for i in np.round(np.linspace(0, len(frames) - 1, min(15, len(frames))))}
-            )
-            stacks = None
-            for t in pick:
-                try:
-                    fd = source.read(t, masks=False)
-                except BadFrame:
-                    continue
-                stacks = (
-                    [[im] for im in fd.images]
-                    if stacks is None
-                    else [s + [im] for s, im in zip(stacks, fd.images, strict=True)]
-                )
-            if stacks is None:
-                raise MocapInputError(None, "no readable frame to estimate the background from")
-            self.extractor.set_background([np.stack(s) for s in stacks])
+            self.extractor.set_background(median_background(source, frames))
 
     def __call__(self, fd: FrameData, dof: int) -> tuple[TrackObservation, np.ndarray]:
         """The observation (with a placeholder centre) and the host foreground masks ``(V, H, W)`` bool."""

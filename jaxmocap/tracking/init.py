@@ -21,7 +21,7 @@ from jaxmocap.fit import ik
 from jaxmocap.geometry import body as body_mod
 from jaxmocap.geometry import camera
 from jaxmocap.io import export
-from jaxmocap.io.openpose import BODY_25B_OF_JOINT
+from jaxmocap.io.keypoints import KEYPOINT_INDEX
 
 __all__ = [
     "KEYPOINT_OF",
@@ -34,8 +34,9 @@ __all__ = [
     "silhouette_centroid",
 ]
 
-#: OpenPose BODY_25B keypoint of each evaluation joint it measures (``thorax`` ≈ the upper neck).
-KEYPOINT_OF = BODY_25B_OF_JOINT
+#: Index of each evaluation joint a detector measures in the keypoints of a source (``(V, 15, 3)`` evaluation
+#: joints, :func:`jaxmocap.io.keypoints.eval_keypoints`): all but the root and the head.
+KEYPOINT_OF = KEYPOINT_INDEX
 
 
 def silhouette_centroid(rig: camera.Rig, masks: np.ndarray | None, min_pixels: int = 20) -> np.ndarray | None:

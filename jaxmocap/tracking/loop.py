@@ -40,7 +40,7 @@ from jaxmocap.filters.base import State
 from jaxmocap.filters.factory import particles_text
 from jaxmocap.io import export
 from jaxmocap.io.sources import BadFrame
-from jaxmocap.tracking import run_folder
+from jaxmocap.tracking import outputs, run_folder
 from jaxmocap.tracking.init import root_translation_dofs
 from jaxmocap.tracking.progress import CompileNotice, Progress
 
@@ -382,9 +382,14 @@ class TrackingLoop:
             "layers": setup.layers,
             "cues": [list(c) for c in setup.cues],
         }
-        if n:
-            export.save_model_bvh(self.out / export.TRACK_BVH, model, pose_writer.states, self.source.fps)
         groundtruth = getattr(self.source, "groundtruth", None)
+        if n:  # the exported track: poses_smoothed.npz, track.bvh, poses.trc, poses.c3d, plots/
+            summary.update(
+                outputs.export_track(
+                    self.out, model, setup.frames, pose_writer.frames, pose_writer.states, diag.records,
+                    self.source.fps, smooth=self.o.smooth, bvh_units=self.o.bvh_units, groundtruth=groundtruth,
+                )
+            )  # fmt: skip
         if groundtruth is not None and n:
             from jaxmocap.eval import metrics
 
@@ -399,15 +404,16 @@ class TrackingLoop:
         return summary
 
     def write_overlays(self, pose_writer) -> list[pathlib.Path]:
-        """One MP4 per view of the tracked model drawn over the input (full size)."""
+        """One H.264 MP4 per view of the tracked model drawn over the input (full size), and a montage PNG."""
         from jaxmocap.eval import viz
 
         rig = self.source.rig
         rj = rig.to_jax(jnp.float32)
         model = self.setup.model
         states = dict(zip(pose_writer.frames, pose_writer.states, strict=True))
+        joints = dict(zip(pose_writer.frames, pose_writer.joints, strict=True))
         gt = self.source.groundtruth
-        with viz.OverlayVideo(self.out, rig.names, rig.image_size, self.source.fps) as video:
+        with viz.OverlayVideo(self.out, rig.names, rig.image_size, self.source.fps, rj) as video:
             for t in self.setup.frames:
                 if t not in states:
                     continue
@@ -416,8 +422,8 @@ class TrackingLoop:
                 except BadFrame:
                     continue
                 truth = None if gt is None else gt[t]
-                video.write(viz.overlay_image(fd.images, model, rj, states[t], truth))
-            return list(video.paths)
+                video.write(viz.overlay_image(fd.images, model, rj, states[t], truth), joints[t], t)
+        return [p for p in (*video.paths, video.montage_path) if p.exists()]
 
 
 def layer_records(layers) -> list[dict]:

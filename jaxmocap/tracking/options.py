@@ -2,7 +2,8 @@
 
 :class:`TrackOptions` holds what ``jaxmocap track`` takes (``None`` = the default of the model or input);
 :func:`build_model` the body, :func:`default_particles` / :func:`default_layers` / :func:`diffusion_std` /
-:func:`default_cues` the defaults, :func:`parse_cues` the ``--cues`` syntax. The filter names (:data:`FILTERS`)
+:func:`default_cues` the defaults, :func:`parse_cues` the ``--cues`` syntax; :func:`load_config` /
+:func:`dump_config` a run's configuration file (``jaxmocap track --config run.toml``). The filter names (:data:`FILTERS`)
 are those of :mod:`jaxmocap.choices`.
 """
 
@@ -40,15 +41,22 @@ __all__ = [
     "default_layers",
     "default_particles",
     "diffusion_std",
+    "dump_config",
+    "load_config",
+    "option_types",
     "parse_cues",
 ]
 
 
 def build_model(
-    name: str | None, body_file: str | os.PathLike | None, fallback_body: os.PathLike | None = None
+    name: str | None,
+    body_file: str | os.PathLike | None,
+    fallback_body: os.PathLike | None = None,
+    dimensions: dict | None = None,
 ):
     """The body model to track with: preset ``name`` with the dimensions of ``body_file`` (or of the sequence's
-    ``fallback_body``); without a name, the model the body file names (default ``full25``).
+    ``fallback_body``, or ``dimensions`` without a body file); without a name, the model the body file names
+    (default ``full25``).
 
     Presets in other units than metres (``parsec31``, registered by :mod:`jaxmocap.parsec`) are built in
     **metres** (:func:`jaxmocap.geometry.body.build` with ``in_metres``) so that they share the calibration and
@@ -59,6 +67,8 @@ def build_model(
     file_model = None
     if path is not None:
         file_model, dims = body_mod.load_body_file(path)
+    if path is None and dimensions:
+        dims = dict(dimensions)
     name = name or file_model or "full25"
     if name not in MODELS:
         raise ValueError(f"unknown model {name!r}; choose one of {', '.join(MODELS)}")
@@ -160,7 +170,9 @@ def parse_cues(spec: str | Sequence | None) -> tuple[tuple[str, float], ...] | N
 class TrackOptions:
     """Options of a tracking run (``None`` = the per-model / per-input default).
 
-    ``model``/``body``: :func:`build_model`; ``filter``, ``particles``, ``layers``: :func:`make_filter` (defaults
+    ``model``/``body``: :func:`build_model` (``body``: a body file, or ``"detections"``: the dimensions measured
+    from the input's 2D detections, :func:`jaxmocap.io.subject.body_dimensions`; None: the sequence's body file,
+    else the detections' dimensions when the input has detections, else the preset's); ``filter``, ``particles``, ``layers``: :func:`make_filter` (defaults
     :func:`default_particles`, :func:`default_layers`); ``cues``: :func:`parse_cues` (default :func:`default_cues`);
     ``seed``: frame ``t`` uses the key ``fold_in(key(seed), t)``; ``frames``: ``"A:B"``; ``init``: ``groundtruth``,
     ``ik``, a file, or ``auto``; ``foreground``/``downsample``/``samples``: :class:`FeatureBuilder`;
@@ -168,7 +180,11 @@ class TrackOptions:
     random walk only); ``diffusion_scale``: multiplies :func:`diffusion_std`; ``survival_target``: α of
     Deutscher's rule; ``loss_*``/``reinit_widen``: track loss (module docstring); ``on_bad_frame``: ``skip`` or
     ``stop``; ``overlay``: MP4 per view; ``resume``/``overwrite``: what to do with a previous run in the output
-    folder; ``fsync``: ``fsync`` every rewrite.
+    folder; ``fsync``: ``fsync`` every rewrite; ``smooth`` (``butterworth[:CUTOFF_HZ]`` or ``none``) and
+    ``bvh_units`` (``cm`` or ``m``): the exported track (:mod:`jaxmocap.tracking.outputs`; not part of
+    :meth:`identity`: a resumed run may export differently); ``keypoint_layout``: ``auto`` or a layout of
+    :data:`jaxmocap.io.keypoints.LAYOUTS`; ``calibration_units``: ``auto``, ``m`` or ``mm``
+    (:func:`jaxmocap.io.calibration.check_units`).
     """
 
     model: str | None = None
@@ -195,6 +211,10 @@ class TrackOptions:
     resume: bool = False
     overwrite: bool = False
     fsync: bool = False
+    smooth: str = "butterworth"
+    bvh_units: str = "cm"
+    keypoint_layout: str = "auto"
+    calibration_units: str = "auto"
 
     def identity(self) -> dict:
         """The options a resumed run must share with the run it continues."""
@@ -219,9 +239,145 @@ class TrackOptions:
             "loss_frames",
             "loss_window",
         )
-        keys += ("reinit_widen",)
+        keys += ("reinit_widen", "keypoint_layout", "calibration_units")
         out = {k: getattr(self, k) for k in keys}
         if isinstance(self.particles, (list, tuple)):
             out["particles"] = [int(c) for c in self.particles]
         out["cues"] = None if self.cues is None else [list(c) for c in parse_cues(self.cues)]
         return out
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Configuration files
+
+#: What a run reads besides its options: keys of a configuration file (paths relative to the file's folder).
+INPUT_KEYS = {
+    "input": "path",
+    "videos": "paths",
+    "calibration": "path",
+    "keypoints": "paths",
+    "depth": "paths",
+}
+#: Keys of a configuration file about the run itself rather than the tracker.
+RUN_KEYS = {"out": "path", "quiet": bool}
+
+
+def option_types() -> dict[str, object]:
+    """Type of each :class:`TrackOptions` field in a configuration file: ``int``, ``float``, ``bool``, ``str`` or
+    ``"particles"`` (an integer or a list of integers)."""
+    out = {}
+    for f in dataclasses.fields(TrackOptions):
+        default = f.default
+        if f.name == "particles":
+            out[f.name] = "particles"
+        elif f.name == "layers":
+            out[f.name] = int
+        elif f.name == "cues":
+            out[f.name] = "cues"
+        elif isinstance(default, bool):
+            out[f.name] = bool
+        elif isinstance(default, int):
+            out[f.name] = int
+        elif isinstance(default, float):
+            out[f.name] = float
+        else:
+            out[f.name] = str
+    return out
+
+
+def _checked(path, key: str, kind, value, base: str):
+    """``value`` of ``key`` checked against ``kind`` (paths resolved against ``base``); one-line error naming the
+    file otherwise."""
+
+    def bad(what):
+        return MocapInputError(path, f"{key!r} must be {what}, not {value!r}")
+
+    if kind == "path":
+        if not isinstance(value, str):
+            raise bad("a path (a string)")
+        return os.path.join(base, os.path.expanduser(value))
+    if kind == "paths":
+        if (
+            isinstance(value, str)
+            or not isinstance(value, list)
+            or not all(isinstance(v, str) for v in value)
+        ):
+            raise bad("a list of paths")
+        return [os.path.join(base, os.path.expanduser(v)) for v in value]
+    if kind is bool:
+        if not isinstance(value, bool):
+            raise bad("true or false")
+        return value
+    if kind is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise bad("an integer")
+        return value
+    if kind is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise bad("a number")
+        return float(value)
+    if kind == "particles":
+        ok = isinstance(value, int) and not isinstance(value, bool)
+        ok = ok or (
+            isinstance(value, list)
+            and value
+            and all(isinstance(v, int) and not isinstance(v, bool) for v in value)
+        )
+        if not ok:
+            raise bad("an integer or a list of integers")
+        return value
+    if kind == "cues":
+        if isinstance(value, str):
+            return value
+        if isinstance(value, list) and all(isinstance(v, str) for v in value):
+            return ",".join(value)
+        raise bad('a string like "foreground,edge_distance:2" or a list of such entries')
+    if not isinstance(value, str):
+        raise bad("a string")
+    return value
+
+
+def load_config(path: str | os.PathLike) -> dict:
+    """A run's configuration file (TOML): any :class:`TrackOptions` field (``filter = "apf"``, ``particles =
+    300``, ``cues = "foreground,coverage:4"`` …), the inputs (``input``, ``videos``, ``calibration``,
+    ``keypoints``, ``depth``; relative paths are relative to the file's folder) and ``out``, ``quiet``. Returns
+    the checked values; an unknown key or a value of the wrong type is a :class:`MocapInputError` naming the
+    file (and the key)."""
+    import tomllib
+
+    path = os.fspath(path)
+    try:
+        with open(path, "rb") as f:
+            data = tomllib.load(f)
+    except OSError as e:
+        raise MocapInputError(path, f"cannot read the configuration: {e.strerror or e}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise MocapInputError(path, f"invalid TOML: {e}") from None
+    kinds = {**option_types(), **INPUT_KEYS, **RUN_KEYS}
+    base = os.path.dirname(os.path.abspath(path))
+    out = {}
+    for key, value in data.items():
+        if key not in kinds:
+            raise MocapInputError(path, f"unknown option {key!r}; known: {', '.join(sorted(kinds))}")
+        out[key] = _checked(path, key, kinds[key], value, base)
+    return out
+
+
+def dump_config(values: dict) -> str:
+    """``values`` (options, inputs, ``out``) as the TOML of :func:`load_config` (None values left out, paths
+    absolute), options first."""
+    import tomli_w
+
+    doc = {}
+    for key, value in values.items():
+        if value is None:
+            continue
+        kind = INPUT_KEYS.get(key) or RUN_KEYS.get(key)
+        if kind == "path":
+            value = os.path.abspath(os.fspath(value))
+        elif kind == "paths":
+            value = [os.path.abspath(os.fspath(v)) for v in value]
+        elif isinstance(value, tuple):
+            value = list(value)
+        doc[key] = value
+    return tomli_w.dumps(doc)

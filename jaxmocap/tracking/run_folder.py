@@ -15,6 +15,7 @@ import numpy as np
 
 from jaxmocap.errors import MocapInputError
 from jaxmocap.io import export
+from jaxmocap.tracking import outputs
 
 __all__ = ["RESUME_NPZ", "RUN_JSON", "check_out", "start_out", "write_checkpoint"]
 
@@ -69,6 +70,7 @@ def start_out(out: pathlib.Path, fresh: bool, description: dict) -> None:
         export.DIAGNOSTICS_JSON,
         export.DIAGNOSTICS_JOURNAL,
         export.TRACK_BVH,
+        *outputs.EXPORTS,
     )
     for name in names:
         if (out / name).exists():

@@ -43,6 +43,7 @@ from jaxmocap.tracking.options import (
     diffusion_std,
     parse_cues,
 )
+from jaxmocap.tracking.outputs import check_export_options
 from jaxmocap.tracking.progress import warn
 
 __all__ = ["ObservationLoglik", "TrackSetup", "frame_range", "observation_loglik"]
@@ -226,7 +227,12 @@ class TrackSetup:
         if o.on_bad_frame not in ("skip", "stop"):
             raise ValueError("on_bad_frame must be 'skip' or 'stop'")
         self.frames = frame_range(o.frames, source.num_frames)
-        self.model = build_model(o.model, o.body, source.body_path)
+        #: what was assumed or converted about the input, for the user (the source's notes, then the setup's)
+        self.notes = list(getattr(source, "notes", []))
+        self.body_dimensions = self._measured_body()
+        body = None if o.body == "detections" else o.body
+        check_export_options(o.smooth, o.bvh_units, source.fps)
+        self.model = build_model(o.model, body, source.body_path, self.body_dimensions)
         cues = parse_cues(o.cues) or default_cues(self.model.name, source.has_depth, source.has_keypoints)
         for name, _ in cues:
             if name == "depth" and not source.has_depth:
@@ -239,6 +245,7 @@ class TrackSetup:
         )
         if any(n in FOREGROUND_CUES for n, _ in cues) and self.features.foreground == "none":
             raise ValueError("the foreground / coverage cues need a foreground (not --foreground none)")
+        self._check_camera_order()
         self.layers = o.layers if o.layers is not None else default_layers(o.filter)[0]
         if self.layers < 1:
             raise ValueError("--layers must be at least 1")
@@ -251,6 +258,56 @@ class TrackSetup:
         self.num_particles = list(counts) if isinstance(n, (list, tuple)) else int(n)
         self.std = diffusion_std(self.model, source.fps) * float(o.diffusion_scale)
         self.likelihood = self._build_likelihood()
+
+    def _check_camera_order(self, num: int = 16) -> None:
+        """Inputs whose calibration no detections have checked (``source.check_silhouettes``): the centroids of
+        the foreground of ``num`` frames spread over the run, seen by the static background, must triangulate
+        better in the calibration's camera order than in any other
+        (:func:`jaxmocap.io.subject.check_rig_silhouettes`)."""
+        src, fb = self.source, self.features
+        if not getattr(src, "check_silhouettes", False) or fb.foreground != "median" or src.rig.num_views < 2:
+            return
+        from jaxmocap.io.subject import check_rig_silhouettes
+
+        frames = self.frames
+        pick = sorted(
+            {frames[int(i)] for i in np.round(np.linspace(0, len(frames) - 1, min(num, len(frames))))}
+        )
+        centroids = np.full((len(pick), src.rig.num_views, 2), np.nan)
+        for i, t in enumerate(pick):
+            try:
+                fd = src.read(t, masks=False, depth=False)
+            except BadFrame:
+                continue
+            masks = fb.extractor.foreground_masks(fb.extractor._check_frames(fd.images), None)
+            for v, m in enumerate(masks):
+                ys, xs = np.nonzero(m)
+                if xs.size >= 50:
+                    centroids[i, v] = xs.mean(), ys.mean()
+        check_rig_silhouettes(fb.rig, centroids, src.description.get("calibration"))
+
+    def _measured_body(self) -> dict | None:
+        """The subject's dimensions measured from the input's detections (``body = "detections"``, or no body
+        file and an input with detections), or None."""
+        o, src = self.o, self.source
+        wanted = o.body == "detections" or (o.body is None and src.body_path is None and src.has_keypoints)
+        if not wanted or o.model == "parsec31":
+            return None
+        if not src.has_keypoints:
+            raise ValueError("--body detections needs 2D keypoints (--keypoints)")
+        from jaxmocap.io.subject import body_dimensions
+
+        dims = body_dimensions(src.keypoints, src.rig)
+        if len(dims) < 6:
+            self.notes.append(
+                "too few triangulated detections to measure the subject: preset body dimensions"
+            )
+            return None
+        shown = ", ".join(
+            f"{k.replace('_length', '')} {v:.2f}" for k, v in dims.items() if k.endswith("length")
+        )
+        self.notes.append(f"body dimensions measured from the triangulated detections (m): {shown}")
+        return dims
 
     @property
     def velocity(self) -> float:
@@ -412,5 +469,6 @@ class TrackSetup:
             "frames": [self.frames[0], self.frames[-1] + 1],
             "fps": self.source.fps,
             "diffusion_std": self.std.tolist(),
+            "body_dimensions": self.body_dimensions,
             "jax": jax.__version__,
         }

@@ -29,7 +29,12 @@ def _quadratic(X, observation, layer):
 
 
 class _Counted:
-    """``jax.jit`` of ``filt.step`` with the filter as an argument, counting traces."""
+    """``jax.jit`` of ``filt.step`` with the filter as an argument, counting traces.
+
+    A call runs the step (compiled on its first trace); :meth:`trace` only traces it (and lowers it, without XLA's
+    compilation), for a filter whose trace is counted but whose results are not read. A trace made by
+    :meth:`trace` serves later calls of the same structure as well (jit's trace cache).
+    """
 
     def __init__(self):
         self.traces = 0
@@ -42,6 +47,10 @@ class _Counted:
     def __call__(self, filt, observation):
         state = filt.init(jax.random.key(0), jnp.zeros(D))
         return self.fn(filt, jax.random.key(1), state, observation)
+
+    def trace(self, filt, observation, state=None):
+        state = filt.init(jax.random.key(0), jnp.zeros(D)) if state is None else state
+        self.fn.lower(filt, jax.random.key(1), state, observation)
 
 
 def _betas(info):
@@ -83,9 +92,9 @@ def test_apf_data_changes_do_not_retrace():
     np.testing.assert_allclose(np.asarray(j1.layers.survival_rate), 0.2, atol=1e-3)
 
     # structure: particle count and number of layers recompile
-    step(dataclasses.replace(f, num_particles=32), TARGET)
+    step.trace(dataclasses.replace(f, num_particles=32), TARGET)
     assert step.traces == 3
-    step(dataclasses.replace(f, schedule=Schedule.fixed((0.5, 1.0), (1.0, 0.5))), TARGET)
+    step.trace(dataclasses.replace(f, schedule=Schedule.fixed((0.5, 1.0), (1.0, 0.5))), TARGET)
     assert step.traces == 4
 
 
@@ -102,11 +111,11 @@ def test_partitioned_data_changes_do_not_retrace():
     np.testing.assert_array_equal(_betas(i1), np.float32([[0.6, 0.9], [0.6, 0.9]]))
     assert not np.array_equal(np.asarray(s0.particles), np.asarray(s1.particles))
     assert not np.array_equal(np.asarray(s0.particles), np.asarray(s2.particles))
-    step(dataclasses.replace(f, counts=(48, 32)), TARGET)
+    step.trace(dataclasses.replace(f, counts=(48, 32)), TARGET)
     assert step.traces == 2
     p = Partitioned(_quadratic, jnp.full(D, 0.2), groups, counts)
-    step(p, TARGET)
-    step(dataclasses.replace(p, diffusion_std=jnp.full(D, 0.3)), TARGET)
+    step.trace(p, TARGET)
+    step.trace(dataclasses.replace(p, diffusion_std=jnp.full(D, 0.3)), TARGET)
     assert step.traces == 3
 
 
@@ -154,11 +163,14 @@ def test_likelihood_weights_and_lambda_are_data(two_cues):
     assert not np.array_equal(a, b) and not np.array_equal(a, d)
     np.testing.assert_allclose(c, 2.0 * a, rtol=1e-6)
     # the weights multiply as before: k_c w_v E_c,v with k_c taken from the cues
-    e = np.asarray(jax.vmap(lik.view_energies, in_axes=(0, None))(X, obs))
-    e3 = np.asarray(jax.vmap(lik3.view_energies, in_axes=(0, None))(X, obs))
+    energies = jax.jit(lambda lik, X, obs: jax.vmap(lik.view_energies, in_axes=(0, None))(X, obs))
+    e = np.asarray(energies(lik, X, obs))
+    e3 = np.asarray(energies(lik3, X, obs))
     np.testing.assert_allclose(e3[:, 0], 0.5 * e[:, 0], rtol=1e-6)
     np.testing.assert_array_equal(e3[:, 1], e[:, 1])
-    f(L.Likelihood.create(model, lik.rig, [L.Cue("foreground")], num_layers=2, surface_points=60), X, obs)
+    f.lower(
+        L.Likelihood.create(model, lik.rig, [L.Cue("foreground")], num_layers=2, surface_points=60), X, obs
+    )
     assert len(traces) == 2
 
 
@@ -183,7 +195,7 @@ def test_filter_with_pytree_likelihood_does_not_retrace(two_cues):
     np.testing.assert_array_equal(_betas(i1), np.float32([0.2, 0.8]))
     assert not np.array_equal(np.asarray(s0.log_weights), np.asarray(s1.log_weights))
     f8 = dataclasses.replace(f, num_particles=8)
-    run(f8, jax.random.key(1), f8.init(jax.random.key(0), model.rest_pose), obs)
+    counted.trace(f8, obs, f8.init(jax.random.key(0), model.rest_pose))
     assert counted.traces == 2
 
 
@@ -220,24 +232,14 @@ def test_tracker_likelihood_parameters_are_data(two_cues):
     lik3 = L.Likelihood.create(
         model, lik.rig, [L.Cue("foreground", 1.0), L.Cue("edges", 2.0)], num_layers=2, surface_points=60
     )
-    run(
-        dataclasses.replace(f, loglik_batch=observation_loglik(lik3, num_layers=2)),
-        jax.random.key(1),
-        state,
-        tobs,
-    )
+    counted.trace(dataclasses.replace(f, loglik_batch=observation_loglik(lik3, num_layers=2)), tobs, state)
     assert counted.traces == 3  # the Partial above, then another geometry (new arrays held as constants)
     # params_data=False (the gradient filters): the parameters are constants, a new value compiles anew
     const = observation_loglik(lik, num_layers=2, params_data=False)
-    run(dataclasses.replace(f, loglik_batch=const), jax.random.key(1), state, tobs)
-    run(dataclasses.replace(f, loglik_batch=const), jax.random.key(1), state, tobs)
+    counted.trace(dataclasses.replace(f, loglik_batch=const), tobs, state)
+    counted.trace(dataclasses.replace(f, loglik_batch=const), tobs, state)
     assert counted.traces == 4
-    run(
-        dataclasses.replace(f, loglik_batch=dataclasses.replace(const, lik=lik2)),
-        jax.random.key(1),
-        state,
-        tobs,
-    )
+    counted.trace(dataclasses.replace(f, loglik_batch=dataclasses.replace(const, lik=lik2)), tobs, state)
     assert counted.traces == 5
 
 

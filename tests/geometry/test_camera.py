@@ -258,7 +258,7 @@ def test_pose2sim_trc_reprojects_onto_openpose_keypoints():
         assert BODY_25B_KEYPOINTS[i] == {"Neck": "UpperNeck", "Head": "HeadTop"}.get(name, name)
     idx = [mapping[n] for n in names]
     kp = np.stack(
-        [load_openpose_folder(P2S / "pose" / f"cam0{c}_json") for c in range(1, 5)], 1
+        [load_openpose_folder(P2S / "pose" / f"cam0{c}_json", frames=range(10)) for c in range(1, 5)], 1
     )  # (10,V,25,3)
     assert kp.shape == (10, 4, 25, 3)
     with enable_x64(True):

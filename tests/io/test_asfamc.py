@@ -137,7 +137,7 @@ def test_eval_joints_and_body_dimensions(motions):
     ev = mocap.eval_joints(m)
     i = {n: k for k, n in enumerate(EVAL_JOINTS)}
     np.testing.assert_array_equal(ev[:, i["thorax"]], m.positions[:, m.joint_index("lowerneck")])
-    np.testing.assert_array_equal(ev[:, i["left_wrist"]], m.positions[:, m.joint_index("lwrist")])
+    np.testing.assert_array_equal(ev[:, i["left_wrist"]], m.positions[:, m.joint_index("lhand")])
     head_end = m.end_positions[:, m.end_parents.index(m.joint_index("head"))]
     np.testing.assert_allclose(ev[:, i["head"]], 0.5 * (m.positions[:, m.joint_index("head")] + head_end))
     d = mocap.body_dimensions_from_motion(m)
@@ -145,10 +145,91 @@ def test_eval_joints_and_body_dimensions(motions):
     assert d["left_thigh_length"] == pytest.approx(L["lfemur"])
     assert d["right_shin_length"] == pytest.approx(L["rtibia"])
     assert d["left_upper_arm_length"] == pytest.approx(L["lhumerus"])
-    assert d["right_forearm_length"] == pytest.approx(L["rradius"])
+    assert d["right_forearm_length"] == pytest.approx(L["rradius"] + L["rwrist"])
     assert d["head_length"] == pytest.approx(L["head"])
     assert 0.3 < d["torso_length"] < 0.45 and 0.3 < d["shoulder_width"] < 0.5
     assert set(d) >= set(DEFAULT_DIMENSIONS) - {k for k in DEFAULT_DIMENSIONS if "radius" in k}
+
+
+def _asf_by_hand(path):
+    """An ASF read with string operations only: bone -> (unit direction, length, axis rotation C, dofs) and
+    bone -> parent ("root" at the top)."""
+    lines = [ln.split("#")[0].split() for ln in path.read_text().splitlines()]
+    bones, parent, section, cur, in_h = {}, {}, None, None, False
+    for w in (w for w in lines if w):
+        if w[0].startswith(":"):
+            section = w[0]
+        elif section == ":bonedata" and w == ["begin"]:
+            cur = {}
+        elif section == ":bonedata" and w == ["end"]:
+            d = np.array(cur["direction"], float)
+            C = Rotation.from_euler("xyz", np.array(cur["axis"][:3], float), degrees=True).as_matrix()
+            bones[cur["name"][0]] = (d / np.linalg.norm(d), float(cur["length"][0]), C, cur.get("dof", []))
+        elif section == ":bonedata" and cur is not None:
+            cur[w[0]] = w[1:]
+        elif section == ":hierarchy" and w in (["begin"], ["end"]):
+            in_h = w == ["begin"]
+        elif section == ":hierarchy" and in_h:
+            parent.update(dict.fromkeys(w[1:], w[0]))
+    return bones, parent
+
+
+def _articulations(bones, parent, first, leaf):
+    """Bones from ``first`` down to ``leaf`` that bend the limb: some dof axis ``C e`` is not along the bone (a
+    dof about the bone's own direction only twists it, as the ASF ``wrist`` bones' ``ry``)."""
+    chain = [leaf]
+    while chain[-1] != first:
+        chain.append(parent[chain[-1]])
+    axis = {"rx": 0, "ry": 1, "rz": 2}
+    bends = lambda b: any(abs(bones[b][2][:, axis[d]] @ bones[b][0]) < 0.99 for d in bones[b][3])
+    return [b for b in reversed(chain) if bends(b)]
+
+
+@pytest.mark.parametrize(("asf", "amc"), CLIPS)
+def test_eval_joints_are_where_the_asf_articulates(motions, asf, amc):
+    """An independent reading of the ASF's degrees of freedom: along the arm (clavicle to fingers) the bones that
+    bend are the clavicle, humerus, radius, hand and fingers (the wrist bone only twists), so the shoulder, elbow
+    and wrist are the starts of the 2nd, 3rd and 4th; along the leg the hip, knee and ankle are the starts of the
+    1st, 2nd and 3rd. Bone starts at rest are sums of ``length · direction`` from the text; the evaluation joints
+    of the motion sit there. Then the kinematics: turning the hand's own dofs by 25° keeps the wrist still and
+    every hand point at the same distance from it (it is the centre of that rotation); from the start of the
+    twisting wrist bone, the old choice, the fingertip's distance changes."""
+    bones, parent = _asf_by_hand(CMU / asf)
+    start = {}
+    for b in bones:
+        chain, p = [], parent[b]
+        while p != "root":
+            chain.append(p)
+            p = parent[p]
+        start[b] = sum((bones[a][1] * bones[a][0] for a in chain), np.zeros(3))
+    m = motions[amc]
+    rest = dict(zip(EVAL_JOINTS, mocap.rest_eval_joints(m), strict=True))
+    root = mocap.rest_positions(m)[0][0]
+    for side in ("l", "r"):
+        s = "left" if side == "l" else "right"
+        arm = _articulations(bones, parent, f"{side}clavicle", f"{side}fingers")
+        leg = _articulations(bones, parent, f"{side}hipjoint", f"{side}toes")
+        assert arm == [f"{side}{b}" for b in ("clavicle", "humerus", "radius", "hand", "fingers")]
+        assert leg == [f"{side}{b}" for b in ("femur", "tibia", "foot", "toes")]
+        for joint, bone in zip(("shoulder", "elbow", "wrist"), arm[1:4], strict=True):
+            np.testing.assert_allclose(rest[f"{s}_{joint}"] - root, SCALE * A @ start[bone], atol=1e-12)
+        for joint, bone in zip(("hip", "knee", "ankle"), leg[:3], strict=True):
+            np.testing.assert_allclose(rest[f"{s}_{joint}"] - root, SCALE * A @ start[bone], atol=1e-12)
+
+    skel = asfamc.read_asf(CMU / asf)
+    values, unit = asfamc.read_amc(CMU / amc, skel)
+    frames = slice(0, 60, 10)
+    turned = {k: v.copy() for k, v in values.items()}
+    turned["lhand"] += 25.0
+    m2 = asfamc.motion_from_asfamc(skel, turned, unit, fps=120)
+    wrist = lambda mo: mocap.eval_joints(mo)[frames, EVAL_JOINTS.index("left_wrist")]
+    tip = lambda mo: mo.end_positions[frames, mo.end_site_of("lfingers")]
+    np.testing.assert_allclose(wrist(m2), wrist(m), atol=1e-12)
+    assert np.abs(tip(m2) - tip(m)).max() > 0.01
+    dist = lambda mo, p: np.linalg.norm(tip(mo) - p, axis=-1)
+    np.testing.assert_allclose(dist(m2, wrist(m2)), dist(m, wrist(m)), atol=1e-12)
+    twist_start = lambda mo: mo.positions[frames, mo.joint_index("lwrist")]
+    assert np.abs(dist(m2, twist_start(m2)) - dist(m, twist_start(m))).max() > 0.005
 
 
 def test_asf_motion_exports_to_bvh(tmp_path, motions):

@@ -1,127 +1,20 @@
-"""Tracking outputs: BVH of body-model motion (round trip through the project's reader and through bvhio),
-incremental poses.npz / poses.csv, the diagnostics journal, atomic rewrites."""
+"""Tracking outputs: incremental poses.npz / poses.csv, the diagnostics journal, atomic rewrites (the BVH of a
+body model's motion: test_body_bvh.py)."""
 
 import csv
 import json
 import os
-import warnings
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import jaxmocap.parsec  # noqa: F401  (registers the parsec31 body)
 from jaxmocap.geometry import body
-from jaxmocap.io import bvh, export, mocap
+from jaxmocap.io import export
 from jaxmocap.tracking.options import build_model
-
-with warnings.catch_warnings():  # PyGLM (under bvhio) warns about its import name on import
-    warnings.simplefilter("ignore", PendingDeprecationWarning)
-    import bvhio
-
-A = mocap.Y_UP_TO_Z_UP
-MODELS = ("upper9", "upper14", "full25", "parsec31")
 
 
 def _model(name):
     return build_model(name, None)
-
-
-def _random_states(model, T, seed):
-    """States spread over the inner half of every joint range (angles of unlimited DOFs within ±π)."""
-    rng = np.random.default_rng(seed)
-    lo, hi = np.asarray(model.lower, np.float64), np.asarray(model.upper, np.float64)
-    lo, hi = np.maximum(lo, -np.pi), np.minimum(hi, np.pi)
-    mid, half = 0.5 * (lo + hi), 0.25 * (hi - lo)
-    X = mid + half * rng.uniform(-1, 1, (T, model.num_dofs))
-    trans = [d for d in model.topology.segment_dofs[0] if model.topology.dof_kinds[d] == "P"]
-    X[:, trans] = np.asarray(model.rest_pose)[trans] + rng.uniform(-1.0, 1.0, (T, len(trans)))
-    return X
-
-
-def _fk(model, X):
-    R, t = jax.vmap(lambda x: body.segment_poses(model, x))(jnp.asarray(X, jnp.float32))
-    J = jax.vmap(lambda x: body.joint_positions(model, x))(jnp.asarray(X, jnp.float32))
-    return np.asarray(t, np.float64), np.asarray(J, np.float64)
-
-
-@pytest.mark.parametrize("name", MODELS)
-def test_bvh_round_trip_reproduces_joints(tmp_path, name):
-    model = _model(name)
-    X = _random_states(model, 12, seed=MODELS.index(name))
-    path = tmp_path / "track.bvh"
-    export.save_model_bvh(path, model, X, fps=30.0)
-    m = bvh.load_bvh(path, scale=0.01)  # centimetres, y up (the defaults of the writer)
-    assert m.fps == 30.0 and m.num_frames == 12
-    assert m.joint_names == model.segment_names
-    seg_t, joints = _fk(model, X)
-    # segment origins are the BVH joints, evaluation joints off the origins are end sites
-    np.testing.assert_allclose(m.positions, seg_t, atol=2e-5)  # float32 FK vs float64 reader, 6-decimal cm
-    np.testing.assert_allclose(export.bvh_eval_joints(m, model), joints, atol=2e-5)
-
-
-@pytest.mark.parametrize("name", MODELS)
-def test_bvh_agrees_with_bvhio(tmp_path, name):
-    """An independent reader (bvhio) computes the same segment origins from the written file."""
-    model = _model(name)
-    X = _random_states(model, 4, seed=10 + MODELS.index(name))
-    path = tmp_path / "track.bvh"
-    export.save_model_bvh(path, model, X, fps=25.0)
-    root = bvhio.readAsHierarchy(str(path))
-    names = [j.Name for j, _, _ in root.layout()]
-    seg_t, _ = _fk(model, X)
-    for f in range(4):
-        root.loadPose(f)
-        world = np.asarray([[*j.PositionWorld] for j, _, _ in root.layout()], np.float64) * 0.01 @ A.T
-        for k, n in enumerate(names):
-            s = model.segment_names.index(n)
-            np.testing.assert_allclose(world[k], seg_t[f, s], atol=1e-4)  # bvhio computes in float32
-
-
-def test_bvh_channels_are_the_dofs():
-    """full25: one channel per DOF, in DOF order, with the state's values (degrees / centimetres) as written."""
-    model = _model("full25")
-    X = _random_states(model, 3, seed=5)
-    data = export.model_bvh(model, X, fps=30.0)
-    assert sum(len(c) for c in data.channels) == model.num_dofs
-    assert data.frames.shape == (3, model.num_dofs)
-    # each column is ±the DOF (angles in degrees) or offset ± translation in cm
-    col = 0
-    for s, dofs in enumerate(model.topology.segment_dofs):
-        for d in dofs:
-            v = data.frames[:, col]
-            if model.topology.dof_kinds[d] == "R":
-                np.testing.assert_allclose(np.abs(v), np.abs(np.rad2deg(X[:, d])), rtol=1e-12)
-            col += 1
-        assert len(data.channels[s]) == len(dofs)
-    # y-up file: a rotation about the world's z (the heading) is a Y rotation
-    assert data.channels[0][model.dof_index("root_rz")] == "Yrotation"
-    assert data.channels[0][:3] == ("Zposition", "Xposition", "Yposition")
-
-
-def test_rotated_rest_frames_get_euler_channels():
-    """parsec31's thighs have rotated rest frames: their local rotation is written as Z Y X Euler angles; its
-    un-rotated segments keep their DOFs as channels, and the rigid thorax has none."""
-    model = _model("parsec31")
-    data = export.model_bvh(model, _random_states(model, 2, seed=1), fps=30.0)
-    rotated = [
-        s for s in range(len(model.segment_names)) if not np.allclose(model.rest_rotation[s], np.eye(3))
-    ]
-    assert model.segment_names.index("left_thigh") in rotated
-    for s, chans in enumerate(data.channels):
-        if s in rotated:
-            assert chans == ("Zrotation", "Yrotation", "Xrotation")
-        else:
-            assert len(chans) == len(model.topology.segment_dofs[s])
-
-
-def test_bvh_of_no_frames_and_bad_shape(tmp_path):
-    model = _model("upper9")
-    data = export.model_bvh(model, np.zeros((0, model.num_dofs)), fps=30.0)
-    assert data.frames.shape[0] == 0
-    with pytest.raises(ValueError, match="states must be"):
-        export.model_bvh(model, np.zeros((3, 2)), fps=30.0)
 
 
 def test_eval_joints_of_fills_missing_with_nan():

@@ -13,9 +13,8 @@ import pytest
 from jaxmocap.errors import MocapInputError
 from jaxmocap.geometry import camera
 from jaxmocap.geometry.body import EVAL_JOINTS
-from jaxmocap.io.pose2sim import KEYPOINT_OF_TRC, Pose2SimSource, body_dimensions, reference_joints
-from jaxmocap.tracking.options import TrackOptions
-from jaxmocap.tracking.tracker import Tracker
+from jaxmocap.io.pose2sim import JOINT_OF_TRC, Pose2SimSource, reference_joints
+from jaxmocap.io.subject import body_dimensions
 
 DATA = pathlib.Path(__file__).parents[1] / "data" / "pose2sim_small"
 CAMS = [f"cam0{c}" for c in range(1, 5)]
@@ -43,7 +42,7 @@ def test_reference_reprojects_onto_detections():
     rj = src.rig.to_jax(jnp.float32)
     errs = []
     for t in range(len(FRAMES)):
-        for name, k in KEYPOINT_OF_TRC.items():
+        for name, k in JOINT_OF_TRC.items():
             uv = np.asarray(camera.project(rj, jnp.asarray(markers[name][t][None], jnp.float32)))[:, 0]
             kp = src.keypoints[t, :, k]
             ok = kp[:, 2] > 0.3
@@ -62,7 +61,9 @@ def test_subject_is_the_nearest_person():
     _, markers, _ = reference_joints(DATA / "reference.trc")
     rj = src.full_rig.to_jax(jnp.float32)
     uv = np.asarray(camera.project(rj, jnp.asarray(markers["LHip"][0][None], jnp.float32)))[:, 0]
-    assert np.all(np.linalg.norm(src.keypoints_full[0, :, 11, :2] - uv, axis=-1) < 100.0)
+    assert np.all(
+        np.linalg.norm(src.keypoints_full[0, :, EVAL_JOINTS.index("left_hip"), :2] - uv, axis=-1) < 100.0
+    )
 
 
 def test_body_dimensions_plausible():
@@ -85,36 +86,109 @@ def test_missing_frame_is_an_input_error():
         )
 
 
+def _make_project(root: pathlib.Path) -> pathlib.Path:
+    """A Pose2Sim project of the four stored frames at 1/8 scale: Config.toml (pose_model 'Body_with_feet', as
+    Pose2Sim's current demo says, while the detections are BODY_25B), calibration/Calib_scaled.toml (the demo's
+    calibration for 1/8-size images) with extrinsics/camNN_ext.jpg scene images (the stored backgrounds),
+    videos/camNN.avi (cam01 and cam02 cropped to 130 px, as a codec crops its padding) and pose/camNN_json (the
+    detections mapped to 1/8 size)."""
+    import json
+
+    from jaxmocap.io import calibration
+
+    root.mkdir()
+    (root / "Config.toml").write_text(
+        "[project]\nframe_rate = 60\nframe_range = [0, 4]\nmulti_person = false\n\n"
+        "[pose]\npose_model = 'Body_with_feet'\n"
+    )
+    (root / "calibration" / "extrinsics").mkdir(parents=True)
+    rig = camera.scale_images(calibration.load_calibration(DATA / "calibration.toml"), SCALE)
+    calibration.save_calibration(root / "calibration" / "Calib_scaled.toml", rig)
+    (root / "videos").mkdir()
+    for v, c in enumerate(CAMS):
+        bg = cv2.imread(str(DATA / "background" / f"{c}.jpg"), cv2.IMREAD_COLOR)
+        cv2.imwrite(str(root / "calibration" / "extrinsics" / f"{c}_ext.jpg"), bg)
+        w, h = rig.image_size[v]
+        w = 130 if v < 2 else w
+        vw = cv2.VideoWriter(str(root / "videos" / f"{c}.avi"), cv2.VideoWriter_fourcc(*"MJPG"), 60.0, (w, h))
+        for f in FRAMES:
+            vw.write(cv2.imread(str(DATA / "images" / c / f"{f:04d}.jpg"), cv2.IMREAD_COLOR)[:, :w])
+        vw.release()
+        out = root / "pose" / f"{c}_json"
+        out.mkdir(parents=True)
+        for src in sorted((DATA / "pose" / f"{c}_json").glob("*.json")):
+            doc = json.loads(src.read_text())
+            for p in doc["people"]:
+                kp = np.asarray(p["pose_keypoints_2d"], np.float64).reshape(-1, 3)
+                kp[:, :2] = np.where(kp[:, 2:] > 0, (kp[:, :2] + 0.5) * SCALE - 0.5, 0.0)
+                p["pose_keypoints_2d"] = kp.reshape(-1).tolist()
+            (out / src.name).write_text(json.dumps(doc))
+    return root
+
+
+@pytest.fixture(scope="module")
+def project(tmp_path_factory):
+    return _make_project(tmp_path_factory.mktemp("p2s") / "trial")
+
+
+def test_project_folder_source(project):
+    """The project folder opens as a video source: the calibration found in calibration/, cam01/cam02 taken as
+    the calibrated images cropped (a note each), the BODY_25B layout read from the files (a note that
+    Config.toml names another), the subject's detections on Pose2Sim's reference, the scene images found."""
+    from jaxmocap.io.pose2sim import open_project, project_settings
+
+    src = open_project(project)
+    try:
+        assert src.num_frames == 4 and src.fps == 60.0 and src.keypoint_layout == "BODY_25B"
+        assert src.rig.image_size[:2] == ((130, 240), (130, 240)) and src.rig.image_size[2] == (136, 240)
+        notes = " | ".join(src.notes)
+        assert notes.count("cropped by the codec's padding") == 2, notes
+        assert "read as BODY_25B, not HALPE_26" in notes, notes
+        assert [p.name for p in src.scene_images] == [f"{c}_ext.jpg" for c in CAMS]
+        _, markers, _ = reference_joints(DATA / "reference.trc")
+        rj = src.rig.to_jax(jnp.float32)
+        errs = []
+        for t in range(4):
+            for name, k in JOINT_OF_TRC.items():
+                uv = np.asarray(camera.project(rj, jnp.asarray(markers[name][t][None], jnp.float32)))[:, 0]
+                kp = src.keypoints[t, :, k]
+                ok = kp[:, 2] > 0.3
+                errs += list(np.linalg.norm(uv[ok] - kp[ok, :2], axis=-1))
+        assert len(errs) > 150 and np.median(errs) < 2.5
+        assert [im.shape[1] for im in src.read(0).images] == [130, 130, 136, 136]
+    finally:
+        src.close()
+    assert project_settings(project) == {
+        "fps": 60.0,
+        "frames": "0:4",
+        "layout": "HALPE_26",
+        "multi_person": False,
+    }
+
+
 @pytest.mark.slow
-def test_track_real_frames_close_to_reference(tmp_path):
-    """Four frames, four cameras, keypoint + image cues: the tracked joints (head left out: the model's head centre
-    has no keypoint counterpart) stay within 80 mm (mean) of Pose2Sim's triangulation. Measured: 40 mm here, 50 mm
-    over the whole recording at 1/4 scale; a wrong axis, scale, camera order or joint mapping gives hundreds."""
-    src = _source()
-    dims = body_dimensions(src.keypoints_full, src.full_rig)
-    body = tmp_path / "body.toml"
-    body.write_text('model = "full25"\n[dimensions]\n' + "".join(f"{k} = {v}\n" for k, v in dims.items()))
-    opts = TrackOptions(
-        model="full25",
-        body=str(body),
-        filter="apf",
+def test_track_real_frames_close_to_reference(project, tmp_path):
+    """Four frames, four cameras, keypoint + image cues, the project folder as the input of ``jaxmocap.track``
+    (body dimensions from the detections, IK initialisation, a median background without the subject filled from
+    the scene images): the tracked joints (head left out: the model's head centre has no keypoint counterpart)
+    stay within 80 mm (mean) of Pose2Sim's triangulation; a wrong axis, scale, camera order or joint mapping
+    gives hundreds."""
+    import jaxmocap
+
+    res = jaxmocap.track(
+        input=project,
         particles=100,
         layers=3,
         cues="foreground,edge_distance,coverage:4,keypoints:4",
         seed=0,
-        init="ik",
-        foreground="median",
+        out=tmp_path / "run",
     )
-    tr = Tracker(src, tmp_path / "run", opts, quiet=True)
-    tr.features.extractor.set_background(
-        [cv2.imread(str(DATA / "background" / f"{c}.jpg"), cv2.IMREAD_COLOR) for c in CAMS]
-    )
-    tr.run()
-    res = np.load(tmp_path / "run" / "poses.npz")
+    assert any("body dimensions measured" in n for n in res.notes)
     ref, _, _ = reference_joints(DATA / "reference.trc")
-    err = np.linalg.norm(res["joints"] - ref, axis=-1) * 1000.0
+    err = np.linalg.norm(res.joints - ref, axis=-1) * 1000.0
     assert err.shape == (len(FRAMES), len(EVAL_JOINTS))
     assert np.all(np.isfinite(err))
     no_head = np.delete(err, EVAL_JOINTS.index("head"), axis=1)
     assert np.mean(no_head) < 80.0, np.mean(no_head, axis=0)
     assert np.max(np.mean(no_head, axis=0)) < 200.0
+    assert (tmp_path / "run" / "config.toml").is_file()

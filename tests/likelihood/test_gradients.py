@@ -73,6 +73,27 @@ def _to64(tree):
 PAIRS = tuple((n, i) for i, n in enumerate(body.EVAL_JOINTS))
 
 
+def _check_grads(value, value_and_grad, x, tol, eps=None):
+    """``check_grads`` (reverse mode, first order, ``atol = rtol = tol``) of ``value`` at ``x``, with the gradient
+    that ``value_and_grad`` returns as its reverse-mode derivative.
+
+    It compares that gradient against central differences of ``value`` (the plain forward program, no derivative
+    in it) along a random direction, and the value ``value_and_grad`` returns against ``value``'s. Both are compiled
+    once: differentiating a jitted ``value`` instead would compile its linearised and transposed forms as two more
+    programs, and evaluating eagerly compiles every primitive on its own.
+    """
+
+    @jax.custom_vjp
+    def f(a):
+        return value(a)
+
+    def bwd(grad, ct):
+        return (jax.tree_util.tree_map(lambda g: ct * g, grad),)
+
+    f.defvjp(value_and_grad, bwd)
+    check_grads(f, (x,), order=1, modes=["rev"], atol=tol, rtol=tol, eps=eps)
+
+
 def _cues():
     return [
         L.Cue("edge_distance", params={"bilinear": True}),
@@ -88,11 +109,13 @@ def test_pose_gradient_against_finite_differences(scene):
         m64 = body.full25(dtype=jnp.float64)
         lik = L.Likelihood.create(m64, rig, _cues(), surface_points=80, contour_points=3)
         obs64, x64 = _to64(obs), jnp.asarray(x, jnp.float64) + 0.011
-        f = lambda s: lik.log_likelihood(s, obs64)  # eager: cheaper than compiling each transformation in x64
+        value = jax.jit(lambda lik, s, o: lik.log_likelihood(s, o))
+        value_and_grad = jax.jit(gradients.value_and_grad_pose)
+        f = lambda s: value(lik, s, obs64)  # noqa: E731
         # bilinear lookups are piecewise linear: a small step (1e-6) rarely crosses a pixel cell boundary
-        check_grads(f, (x64,), order=1, modes=["rev"], atol=1e-3, rtol=1e-3, eps=1e-6)
-        value, g = gradients.value_and_grad_pose(lik, x64, obs64)
-        assert float(value) == pytest.approx(float(f(x64)), rel=1e-12)
+        _check_grads(f, lambda s: value_and_grad(lik, s, obs64), x64, 1e-3, eps=1e-6)
+        v, g = value_and_grad(lik, x64, obs64)
+        assert float(v) == pytest.approx(float(f(x64)), rel=1e-12)
         # central differences of the value for a few entries (root translation and heading, arm, leg, neck)
         h = 1e-6
         dofs = [
@@ -110,17 +133,22 @@ def test_batched_gradients_match_single_and_mask_dead_particles(scene):
     model, rig, x, obs = scene
     lik = L.Likelihood.create(model, rig, _cues()[2:], surface_points=60, contour_points=3)
     X = x + 0.05 * jax.random.normal(jax.random.key(0), (5, x.shape[0]))
-    single = jax.vmap(lambda s: gradients.value_and_grad_pose(lik, s, obs))(X)
-    values, G = gradients.batch_value_and_grad(lik.batch, X, obs, 0)
+    single = jax.jit(lambda lik, X, o: jax.vmap(lambda s: gradients.value_and_grad_pose(lik, s, o))(X))(
+        lik, X, obs
+    )
+    values, G = jax.jit(lambda lik, X, o: gradients.batch_value_and_grad(lik.batch, X, o, 0))(lik, X, obs)
     np.testing.assert_allclose(values, single[0], rtol=1e-6)
     np.testing.assert_allclose(G, single[1], rtol=1e-5, atol=1e-7)
     assert float(jnp.abs(G).max()) > 0
 
-    def dead_rows(X, o, layer):  # rows 1 and 3 give NaN / +inf
-        ll = lik.batch(X, o, layer)
-        return ll.at[1].set(jnp.nan).at[3].set(jnp.inf)
+    def dead_rows(lik):  # a batched likelihood whose rows 1 and 3 give NaN / +inf
+        def loglik(X, o, layer):
+            ll = lik.batch(X, o, layer)
+            return ll.at[1].set(jnp.nan).at[3].set(jnp.inf)
 
-    v2, G2 = gradients.batch_value_and_grad(dead_rows, X, obs, 0)
+        return loglik
+
+    v2, G2 = jax.jit(lambda lik, X, o: gradients.batch_value_and_grad(dead_rows(lik), X, o, 0))(lik, X, obs)
     assert np.isneginf(v2[1]) and np.isneginf(v2[3])
     assert np.all(np.asarray(G2[1]) == 0) and np.all(np.asarray(G2[3]) == 0)
     np.testing.assert_allclose(
@@ -139,17 +167,14 @@ def test_camera_gradient_against_opencv_jacobian(scene):
         lik = L.Likelihood.create(m64, rig, [L.Cue("keypoints", params={"pairs": PAIRS, "sigma_px": sigma})])
         obs64, x64 = _to64(obs), jnp.asarray(x, jnp.float64)
         params = gradients.camera_params(rig, jnp.float64)
-        value, g = gradients.camera_value_and_grad(lik, params, x64, obs64)
-        check_grads(
-            lambda p: gradients.total_log_likelihood(
-                dataclasses.replace(lik, rig=gradients.rig_from_params(p, lik.rig)), x64, obs64
-            ),
-            (params,),
-            order=1,
-            modes=["rev"],
-            atol=1e-4,
-            rtol=1e-4,
+        total = jax.jit(
+            lambda p, x, o: gradients.total_log_likelihood(
+                dataclasses.replace(lik, rig=gradients.rig_from_params(p, lik.rig)), x, o
+            )
         )
+        value_and_grad = jax.jit(lambda p, x, o: gradients.camera_value_and_grad(lik, p, x, o))
+        value, g = value_and_grad(params, x64, obs64)
+        _check_grads(lambda p: total(p, x64, obs64), lambda p: value_and_grad(p, x64, obs64), params, 1e-4)
         J = np.asarray(body.joint_positions(m64, x64), np.float64)
     z = np.asarray(obs.keypoints2d, np.float64)
     total = 0.0
@@ -200,7 +225,7 @@ def test_body_dimension_gradient_closed_form_and_finite_differences(scene):
             m64, rig, [L.Cue("blobs3d", params={"joints": ("left_wrist",), "sigma_m": sigma})]
         )
         dims = {"left_forearm_length": 0.26, "left_upper_arm_length": 0.29, "thigh_length": 0.43}
-        value, g = gradients.body_value_and_grad(lik, dims, x64, obs_b)
+        value, g = jax.jit(lambda d, x, o: gradients.body_value_and_grad(lik, d, x, o))(dims, x64, obs_b)
         r = J[idx["left_wrist"]] - b
         e_fa = J[idx["left_wrist"]] - J[idx["left_elbow"]]
         e_ua = J[idx["left_elbow"]] - J[idx["left_shoulder"]]
@@ -221,13 +246,17 @@ def test_body_dimension_gradient_closed_form_and_finite_differences(scene):
         names = ("left_forearm_length", "upper_arm_radius_top", "torso_radius_top", "shoulder_width")
         d0 = {k: jnp.asarray(body.DEFAULT_DIMENSIONS[k.removeprefix("left_")], jnp.float64) for k in names}
         d0 = {k: v * 1.03 for k, v in d0.items()}  # away from the rendered subject's optimum
-        f = jax.jit(
-            lambda d: gradients.total_log_likelihood(
-                gradients.likelihood_with_dimensions(lik_img, d), x64 + 0.01, obs64
+        value = jax.jit(
+            lambda d, x, o: gradients.total_log_likelihood(
+                gradients.likelihood_with_dimensions(lik_img, d), x, o
             )
         )
-        check_grads(f, (d0,), order=1, modes=["rev"], atol=1e-3, rtol=1e-3, eps=1e-6)
-        _, g_img = gradients.body_value_and_grad(lik_img, d0, x64 + 0.01, obs64)
+        value_and_grad = jax.jit(lambda d, x, o: gradients.body_value_and_grad(lik_img, d, x, o))
+        x1 = x64 + 0.01
+        _check_grads(
+            lambda d: value(d, x1, obs64), lambda d: value_and_grad(d, x1, obs64), d0, 1e-3, eps=1e-6
+        )
+        _, g_img = value_and_grad(d0, x1, obs64)
         assert max(abs(float(v)) for v in g_img.values()) > 1e-3
 
 
@@ -236,6 +265,7 @@ def test_with_body_reproduces_the_likelihood(scene):
     lik = L.Likelihood.create(model, rig, _cues()[:3], surface_points=80, contour_points=3)
     same = gradients.with_body(lik, body.full25())
     X = x + 0.05 * jax.random.normal(jax.random.key(1), (4, x.shape[0]))
-    np.testing.assert_array_equal(np.asarray(same.batch(X, obs, 0)), np.asarray(lik.batch(X, obs, 0)))
+    batch = jax.jit(lambda lik, X, o: lik.batch(X, o, 0))  # one program: the two differ in their leaves only
+    np.testing.assert_array_equal(np.asarray(batch(same, X, obs)), np.asarray(batch(lik, X, obs)))
     with pytest.raises(ValueError, match="same preset"):
         gradients.with_body(lik, body.upper14())

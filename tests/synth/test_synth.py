@@ -23,6 +23,7 @@ from jaxmocap.io.mocap import eval_joints
 from jaxmocap.synth import generate as synth
 
 SIZE = (160, 120)
+EVAL_JOINTS_INDEX = {n: i for i, n in enumerate(body.EVAL_JOINTS)}
 
 
 @pytest.fixture(scope="module")
@@ -257,7 +258,9 @@ def test_two_runs_with_one_seed_are_byte_identical(tmp_path):
     b = synth.synthesize("demo", tmp_path / "b", seed=11, **kw).root
     c = synth.synthesize("demo", tmp_path / "c", seed=12, **kw).root
     files = sorted(p.relative_to(a) for p in a.rglob("*") if p.is_file())
-    assert len(files) == 4 + 2 * 4 * 2
+    assert len(files) == 4 + 2 * (
+        1 + 5 * 2
+    )  # 4 sequence files; 2 views x (a plate + (4 images + detections) x 2 frames)
     assert files == sorted(p.relative_to(b) for p in b.rglob("*") if p.is_file())
     for rel in files:
         assert (a / rel).read_bytes() == (b / rel).read_bytes(), rel
@@ -290,6 +293,41 @@ def test_calibration_file_rig(tmp_path, data_dir):
         assert mask[px[inside, 1], px[inside, 0]].all()
 
 
+def test_simulated_detections_are_written_near_the_truth(exact):
+    """Every view has BODY_25B JSON per frame, read by the project's OpenPose reader; each detected limb keypoint
+    lies within 6 σ of the OpenCV projection of its ground-truth joint (σ at most 3 × 3 px × the largest COCO
+    constant × the distance factor at 10 m), or at the opposite side's joint where swapped."""
+    from jaxmocap.io import openpose
+
+    seq = exact["ring4"]
+    assert seq.meta["detections"]["simulated"] is True
+    cams = _opencv_cameras(seq.root)
+    limb = {
+        n: EVAL_JOINTS_INDEX[j]
+        for j, n in ((j, openpose.BODY_25B_KEYPOINTS[k]) for j, k in openpose.BODY_25B_OF_JOINT.items())
+        if j != "thorax"
+    }
+    bound = 6 * 3 * 3.0 * SIZE[0] / 640 * (0.107 / 0.072) * (1 + 0.2 * 8)
+    found = 0
+    for view in seq.views:
+        det = openpose.load_openpose_folder(seq.root / "views" / view.name / "openpose")
+        assert det.shape == (seq.num_frames, 25, 3)
+        K, dist, R, tv, _ = cams[view.name]
+        for t in range(seq.num_frames):
+            uv, _ = cv2.projectPoints(seq.groundtruth.joints[t], cv2.Rodrigues(R)[0], tv, K, dist)
+            uv = uv[:, 0]
+            for name, j in limb.items():
+                k = openpose.BODY_25B_INDEX[name]
+                if det[t, k, 2] > 0:
+                    other = limb[("R" if name[0] == "L" else "L") + name[1:]]
+                    err = min(
+                        np.linalg.norm(det[t, k, :2] - uv[j]), np.linalg.norm(det[t, k, :2] - uv[other])
+                    )
+                    assert err < bound, (view.name, t, name, err)
+                    found += 1
+    assert found > 0.5 * len(seq.views) * seq.num_frames * len(limb)
+
+
 def test_dressing_of_cmu_skeletons(data_dir):
     amc, asf = synth.demo_clip()
     for motion in (
@@ -306,6 +344,37 @@ def test_dressing_of_cmu_skeletons(data_dir):
         skin = [i for i, r in enumerate(roles) if r in ("hand", "finger", "thumb", "head", "neck")]
         assert np.allclose(colours[skin], synth.ROLE_COLOURS["head"])
         assert not np.allclose(colours[roles.index("thigh")], synth.ROLE_COLOURS["head"])
+
+
+def test_dressing_of_other_skeletons(data_dir):
+    """The Bandai-Namco excerpt's parts follow its recognised joints (its names say little: ``Shoulder_L`` is a
+    clavicle, ``LowerArm_L`` a forearm)."""
+    m, rec = synth.load_clip(data_dir / "bandai" / "dataset-1_walk_normal_001_excerpt.bvh")
+    d = synth.dress(m, rec.mapping)
+    role = dict(zip(d.part_names, d.part_roles, strict=True))
+    assert role["Shoulder_L"] == "clavicle" and role["UpperArm_L"] == "upper_arm"
+    assert role["LowerArm_L"] == "forearm" and role["UpperLeg_R"] == "thigh" and role["LowerLeg_R"] == "shin"
+    assert role["Foot_L"] == "foot" and role["Neck"] == "neck" and "joint_Root" not in role
+    assert role["Hand_L"] == role["Hand_R"] == "hand"  # a nominal hand past the bare wrist
+    assert "limb" not in d.part_roles and d.part_roles[-1] == "head"
+
+
+def test_command_any_skeleton(tmp_path, data_dir, capsys):
+    """``--mapping`` names joints for the clip; a joint the file lacks is one line and status 2."""
+    clip = data_dir / "bandai" / "dataset-1_walk_normal_001_excerpt.bvh"
+    mapping = tmp_path / "map.toml"
+    mapping.write_text('left_wrist = "Hand_L"\nright_wrist = "Hand_R"\n')
+    out = tmp_path / "seq"
+    argv = ["synth", "--motion", str(clip), "--frames", "0:2", "--size", "160x120", "--quiet"]
+    assert cli.main([*argv, "--mapping", str(mapping), "--out", str(out)]) == 0
+    meta = seqio.load_sequence(out).meta
+    assert meta["source"]["skeleton"]["family"] == "file+bandai_namco"
+    assert meta["source"]["skeleton"]["scale"] == 0.01 and "CC BY-NC" in meta["source"]["licence"]
+    mapping.write_text('left_wrist = "Wrist_L"\n')
+    capsys.readouterr()
+    assert cli.main([*argv, "--mapping", str(mapping), "--out", str(tmp_path / "bad")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "left_wrist = 'Wrist_L': no such joint" in err and str(clip) in err
 
 
 def test_options_are_checked(tmp_path):

@@ -1,0 +1,616 @@
+"""Detections of every person in every view → the tracked subject's keypoints, and what they say about the
+calibration.
+
+Input: per frame and view, the detected persons as evaluation-joint keypoints ``(P, 15, 3)``
+(:func:`jaxmocap.io.keypoints.eval_keypoints`) in the pixels of a calibrated :class:`~jaxmocap.geometry.camera.Rig`.
+
+**Multi-view persons** (:func:`multiview_persons`). Per frame: every pair of detections in two views is
+triangulated (DLT on undistorted points, joints of confidence > ``c_min`` in both) and kept as a seed when both
+reproject within ``τ_v`` of their detections (the median over joints; ``τ_v = 2 %`` of the view's larger image
+side, 38 px for 1920 px); the seed is extended by the detection of each other view that lies within ``τ_v`` of the
+seed's projection, re-triangulated from all of them, and the seed with the most views (then the smallest mean
+``residual / τ``) is a person; its detections are taken out and the search repeats.
+
+**Subject** (:func:`select_subject`). The persons of consecutive frames are linked into tracks (nearest centre, the
+mean of the triangulated joints, within ``0.5 m + 3 m/s · Δt``); the subject is the track seen in the most views
+over the recording (Σ views over its frames): the person whose detections triangulate consistently across cameras
+and who stays in view, not the first person of each file. Joints the subject's detection in a view misses are
+taken from another detection of that view lying on the subject's triangulated joints (a detector that split the
+person in two). In a frame where the subject forms no multi-view person
+(seen by one camera), each view takes the detection nearest (within ``τ_v``) to the projection of the subject's
+joints at the nearest frame of its track (at most ``max_gap`` frames away). With one camera the subject is the
+largest detection (bounding-box diagonal of its confident joints) of each frame.
+
+**Calibration checks** (:func:`check_rig`). Over frames where two or more views detect someone: the median over
+frames of the best 2-view residual ``/ τ`` of every pair of cameras. When some pair disagrees (> 1), every
+assignment of the detection folders to the cameras (up to 6 cameras) is tried: if another order makes every pair
+agree, the input is refused naming that order; a camera that agrees with no other camera is refused; and the
+triangulated subject's limbs must be of human size (thigh and upper arm 0.15–0.8 m; a 1000× larger subject means
+translations in millimetres).
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import cv2
+import numpy as np
+
+from jaxmocap.errors import MocapInputError
+from jaxmocap.geometry.body import EVAL_JOINTS
+
+__all__ = [
+    "Person",
+    "SubjectKeypoints",
+    "ViewGeometry",
+    "body_dimensions",
+    "check_order",
+    "check_rig",
+    "check_rig_silhouettes",
+    "limb_lengths",
+    "load_subject",
+    "multiview_persons",
+    "select_subject",
+    "subject_box",
+]
+
+C_MIN = 0.3
+TAU_FRACTION = 0.03
+PAIR_FRACTION = 0.015
+MIN_JOINTS = 4
+
+
+class ViewGeometry:
+    """The rig's cameras for host-side triangulation: ``P (V, 3, 4)`` = ``[R | t]`` in normalised coordinates,
+    focal lengths ``f (V,)`` (pixels per normalised unit, the mean of ``f_x, f_y``) and thresholds ``tau (V,)``."""
+
+    def __init__(self, rig):
+        self.K = np.asarray(rig.K, np.float64)
+        self.dist = np.asarray(rig.dist, np.float64)
+        R, t = np.asarray(rig.R, np.float64), np.asarray(rig.t, np.float64)
+        self.P = np.concatenate([R, t[:, :, None]], axis=2)
+        self.f = 0.5 * (self.K[:, 0, 0] + self.K[:, 1, 1])
+        self.tau = np.asarray([max(TAU_FRACTION * max(w, h), 2.0) for w, h in rig.image_size], np.float64)
+        self.names = list(rig.names)
+        self.num_views = len(self.names)
+
+    def normalise(self, v: int, kp: np.ndarray) -> np.ndarray:
+        """``(…, J, 3)`` pixel keypoints of view ``v`` → ``(…, J, 3)`` undistorted normalised coordinates (a, b, c)."""
+        kp = np.asarray(kp, np.float64)
+        flat = kp[..., :2].reshape(-1, 1, 2)
+        ab = cv2.undistortPoints(flat, self.K[v], self.dist[v]).reshape(*kp.shape[:-1], 2)
+        return np.concatenate([ab, kp[..., 2:3]], axis=-1)
+
+    def triangulate(self, views: list[int], ab: np.ndarray) -> np.ndarray:
+        """Joints ``(J, 3)`` from ``ab (n, J, 3)`` of ``views`` (weights: confidence > ``C_MIN``); NaN for a joint
+        with fewer than two such views."""
+        w = np.where(ab[..., 2] > C_MIN, 1.0, 0.0)  # (n, J)
+        P = self.P[views]  # (n, 3, 4)
+        rows_a = w[..., None] * (ab[..., 0:1] * P[:, None, 2] - P[:, None, 0])  # (n, J, 4)
+        rows_b = w[..., None] * (ab[..., 1:2] * P[:, None, 2] - P[:, None, 1])
+        A = np.concatenate([rows_a, rows_b], axis=0).transpose(1, 0, 2)  # (J, 2n, 4)
+        _, _, vh = np.linalg.svd(A)
+        h = vh[:, -1]
+        with np.errstate(all="ignore"):
+            X = h[:, :3] / h[:, 3:4]
+        X[np.sum(w, axis=0) < 2] = np.nan
+        return X
+
+    def joint_residuals(self, v: int, X: np.ndarray, ab: np.ndarray) -> np.ndarray:
+        """``(J,)`` pixel distances between the projections of ``X (J, 3)`` into view ``v`` and ``ab (J, 3)``; inf
+        where ``X`` is not finite, a detection has confidence ≤ ``C_MIN`` or a point is behind the camera."""
+        out = np.full(len(X), np.inf)
+        ok = np.all(np.isfinite(X), axis=1) & (ab[:, 2] > C_MIN)
+        xc = X[ok] @ self.P[v, :, :3].T + self.P[v, :, 3]
+        front = xc[:, 2] > 1e-6
+        d = np.linalg.norm(xc[front, :2] / xc[front, 2:3] - ab[ok][front, :2], axis=1) * self.f[v]
+        idx = np.flatnonzero(ok)[front]
+        out[idx] = d
+        return out
+
+    def residual(self, v: int, X: np.ndarray, ab: np.ndarray) -> float:
+        """Median over joints (finite in ``X``, confidence > ``C_MIN`` in ``ab (J, 3)``) of the pixel distance
+        between the projection of ``X`` into view ``v`` and the detections; inf with fewer than ``MIN_JOINTS`` or
+        a point behind the camera."""
+        ok = np.all(np.isfinite(X), axis=1) & (ab[:, 2] > C_MIN)
+        if ok.sum() < MIN_JOINTS:
+            return np.inf
+        r = self.joint_residuals(v, X, ab)[ok]
+        return float(np.median(r)) if np.all(np.isfinite(r)) else np.inf
+
+
+class Person(NamedTuple):
+    """A person seen in several views of one frame: ``views {view: detection index}``, the triangulated joints
+    ``X (15, 3)`` (NaN where unknown), the residual ``/ τ`` per view and its centre ``(3,)``."""
+
+    views: dict[int, int]
+    X: np.ndarray
+    score: dict[int, float]
+    centre: np.ndarray
+
+
+def _person(geo: ViewGeometry, ab: list[np.ndarray], chosen: dict[int, int]) -> Person | None:
+    views = sorted(chosen)
+    X = geo.triangulate(views, np.stack([ab[v][chosen[v]] for v in views]))
+    if np.sum(np.all(np.isfinite(X), axis=1)) < MIN_JOINTS:
+        return None
+    score = {v: geo.residual(v, X, ab[v][chosen[v]]) / geo.tau[v] for v in views}
+    return Person(dict(chosen), X, score, np.nanmean(X, axis=0))
+
+
+def multiview_persons(geo: ViewGeometry, dets: list[np.ndarray], max_seeds: int = 20) -> list[Person]:
+    """The persons of one frame seen consistently by two or more views (module docstring); ``dets``: per view the
+    detections ``(P_v, 15, 3)`` in pixels."""
+    ab = [geo.normalise(v, d) if len(d) else d for v, d in enumerate(dets)]
+    free = {
+        (v, p) for v, d in enumerate(dets) for p in range(len(d)) if np.sum(d[p, :, 2] > C_MIN) >= MIN_JOINTS
+    }
+    out = []
+    while True:
+        seeds = []
+        for a, b in itertools.combinations(range(geo.num_views), 2):
+            for i, j in itertools.product(range(len(dets[a])), range(len(dets[b]))):
+                if (a, i) in free and (b, j) in free:
+                    s = _person(geo, ab, {a: i, b: j})
+                    if s is not None and max(s.score.values()) <= 1.0:
+                        seeds.append((max(s.score.values()), s))
+        if not seeds:
+            return out
+        seeds.sort(key=lambda x: x[0])
+        best, best_key = None, None
+        for _, seed in seeds[:max_seeds]:
+            chosen = dict(seed.views)
+            for v in range(geo.num_views):
+                if v in chosen:
+                    continue
+                fits = [
+                    (geo.residual(v, seed.X, ab[v][p]) / geo.tau[v], p)
+                    for p in range(len(dets[v]))
+                    if (v, p) in free
+                ]
+                if fits and min(fits)[0] <= 1.0:
+                    chosen[v] = min(fits)[1]
+            person = _person(geo, ab, chosen) if len(chosen) > 2 else seed
+            if person is None or max(person.score.values()) > 1.0:
+                person = seed
+            key = (-len(person.views), float(np.mean(list(person.score.values()))))
+            if best_key is None or key < best_key:
+                best, best_key = person, key
+        out.append(best)
+        free -= {(v, p) for v, p in best.views.items()}
+
+
+def _largest(dets: np.ndarray) -> int | None:
+    best, size = None, -1.0
+    for p, kp in enumerate(dets):
+        ok = kp[:, 2] > 0.1
+        if ok.sum() >= 2:
+            d = float(np.linalg.norm(kp[ok, :2].max(axis=0) - kp[ok, :2].min(axis=0)))
+            if d > size:
+                best, size = p, d
+    return best
+
+
+def _completed(geo: ViewGeometry, v: int, X: np.ndarray, dets: np.ndarray, p: int, taken: set) -> np.ndarray:
+    """Detection ``p`` of view ``v`` with the joints it misses taken from the view's other detections (not part
+    of a multi-view person, ``taken``) where they lie within ``τ_v`` of the projection of the person's ``X``: a
+    detector that splits one person in two (upper and lower body) gives back one person."""
+    out = dets[p].copy()
+    missing = out[:, 2] <= C_MIN
+    if not missing.any():
+        return out
+    for q in range(len(dets)):
+        if q == p or (v, q) in taken:
+            continue
+        r = geo.joint_residuals(v, X, geo.normalise(v, dets[q]))
+        fill = missing & (r <= geo.tau[v])
+        out[fill] = dets[q][fill]
+        missing &= ~fill
+    return out
+
+
+def _link(persons: list[list[Person]], fps: float) -> list[dict[int, Person]]:
+    """Tracks ``{frame index: person}``: each frame's persons joined to the track whose last centre is nearest,
+    within ``0.5 m + 3 m/s · Δt``."""
+    tracks: list[dict[int, Person]] = []
+    for t, frame in enumerate(persons):
+        pairs = []
+        for k, tr in enumerate(tracks):
+            last = max(tr)
+            gate = 0.5 + 3.0 * (t - last) / fps
+            for i, p in enumerate(frame):
+                d = float(np.linalg.norm(p.centre - tr[last].centre))
+                if d <= gate:
+                    pairs.append((d, k, i))
+        used_t, used_p = set(), set()
+        for _, k, i in sorted(pairs):
+            if k not in used_t and i not in used_p:
+                tracks[k][t] = frame[i]
+                used_t.add(k)
+                used_p.add(i)
+        tracks += [{t: p} for i, p in enumerate(frame) if i not in used_p]
+    return tracks
+
+
+def select_subject(
+    rig, dets: list[list[np.ndarray]], fps: float = 30.0, max_gap: int = 10
+) -> tuple[np.ndarray, dict]:
+    """The subject's keypoints ``(T, V, 15, 3)`` (zeros where a view has none) from ``dets[t][v]`` ``(P, 15, 3)``
+    (module docstring), and a report: ``persons`` (multi-view persons per frame), ``subject_frames`` (frames
+    where the subject is a multi-view person) and ``views_per_frame``."""
+    T, V = len(dets), rig.num_views
+    out = np.zeros((T, V, len(EVAL_JOINTS), 3))
+    if V == 1:
+        for t in range(T):
+            p = _largest(dets[t][0])
+            if p is not None:
+                out[t, 0] = dets[t][0][p]
+        return out, {"persons": [], "subject_frames": 0, "views_per_frame": []}
+    geo = ViewGeometry(rig)
+    persons = [multiview_persons(geo, dets[t]) for t in range(T)]
+    tracks = _link(persons, fps)
+    report = {"persons": [len(p) for p in persons], "subject_frames": 0, "views_per_frame": [0] * T}
+    if not tracks:
+        return out, report
+    subject = max(tracks, key=lambda tr: (sum(len(p.views) for p in tr.values()), len(tr)))
+    report["subject_frames"] = len(subject)
+    known = sorted(subject)
+    for t in range(T):
+        if t in subject:
+            taken = {(v, p) for person in persons[t] for v, p in person.views.items()}
+            for v, p in subject[t].views.items():
+                out[t, v] = _completed(geo, v, subject[t].X, dets[t][v], p, taken)
+            continue
+        near = min(known, key=lambda k: abs(k - t))
+        if abs(near - t) > max_gap:
+            continue
+        X = subject[near].X
+        for v in range(V):
+            if len(dets[t][v]) == 0:
+                continue
+            ab = geo.normalise(v, dets[t][v])
+            fits = [(geo.residual(v, X, ab[p]) / geo.tau[v], p) for p in range(len(dets[t][v]))]
+            if min(fits)[0] <= 1.0:
+                out[t, v] = dets[t][v][min(fits)[1]]
+    report["views_per_frame"] = [int(np.sum(np.any(out[t, :, :, 2] > 0, axis=1))) for t in range(T)]
+    return out, report
+
+
+def subject_box(kp: np.ndarray | None, shape) -> np.ndarray:
+    """``(H, W)`` bool: False inside the bounding box of the confident (> 0.1) keypoints ``kp (K, 3)`` widened by
+    25 % of its height on every side, True elsewhere (everywhere without two such keypoints)."""
+    keep = np.ones(shape, bool)
+    if kp is None:
+        return keep
+    ok = kp[:, 2] > 0.1
+    if ok.sum() >= 2:
+        lo, hi = kp[ok, :2].min(axis=0), kp[ok, :2].max(axis=0)
+        pad = 0.25 * (hi[1] - lo[1])
+        x0, y0 = np.floor(lo - pad).astype(int)
+        x1, y1 = np.ceil(hi + pad).astype(int)
+        keep[max(y0, 0) : max(y1 + 1, 0), max(x0, 0) : max(x1 + 1, 0)] = False
+    return keep
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# What the detections say about the calibration
+
+
+def _pair_score(
+    geo: ViewGeometry,
+    cams: tuple[int, int],
+    dets: tuple[np.ndarray, np.ndarray],
+    min_joints: int = MIN_JOINTS,
+) -> float:
+    """The best 2-view residual (px, the larger of the two views) over the detection pairs of two cameras
+    (``min_joints`` joints triangulated at least): inf when every pair triangulates behind a camera, NaN when no
+    pair has enough joints."""
+    a, b = cams
+    if not len(dets[0]) or not len(dets[1]):
+        return np.nan
+    ab_a, ab_b = geo.normalise(a, dets[0]), geo.normalise(b, dets[1])
+    best = np.nan
+    for i, j in itertools.product(range(len(dets[0])), range(len(dets[1]))):
+        X = geo.triangulate([a, b], np.stack([ab_a[i], ab_b[j]]))
+        ok = np.all(np.isfinite(X), axis=1)
+        if ok.sum() >= min_joints:
+            r = np.concatenate(
+                [geo.joint_residuals(a, X, ab_a[i])[ok], geo.joint_residuals(b, X, ab_b[j])[ok]]
+            )
+            score = float(np.median(r)) if np.all(np.isfinite(r)) else np.inf
+            best = score if np.isnan(best) else min(best, score)
+    return best
+
+
+def _pair_table(geo: ViewGeometry, dets: list[list[np.ndarray]], min_joints: int, orders: bool) -> dict:
+    """``{(a, b, x, y): median over frames of the best 2-view residual (px) of cameras a < b seeing the
+    detections of folders x and y}`` (``orders``: every x ≠ y, else x = a, y = b)."""
+    V = geo.num_views
+    out = {}
+    for a, b in itertools.combinations(range(V), 2):
+        for x, y in itertools.permutations(range(V), 2) if orders else [(a, b)]:
+            s = [_pair_score(geo, (a, b), (d[x], d[y]), min_joints) for d in dets]
+            s = [v for v in s if not np.isnan(v)]
+            out[a, b, x, y] = float(np.median(s)) if s else np.nan
+    return out
+
+
+def _agreement(table: dict, order: tuple[int, ...]) -> np.ndarray:
+    """``M (V, V)``: the 2-view residual (px) of cameras ``a, b`` when camera ``c`` sees folder ``order[c]``."""
+    V = len(order)
+    M = np.full((V, V), np.nan)
+    for a, b in itertools.combinations(range(V), 2):
+        M[a, b] = M[b, a] = table[a, b, order[a], order[b]]
+    return M
+
+
+def limb_lengths(X: np.ndarray) -> np.ndarray:
+    """Thigh and upper-arm lengths ``(4,)`` (left, right) of evaluation joints ``X (15, 3)``; NaN where unknown."""
+    j = {n: i for i, n in enumerate(EVAL_JOINTS)}
+    pairs = [
+        ("left_hip", "left_knee"),
+        ("right_hip", "right_knee"),
+        ("left_shoulder", "left_elbow"),
+        ("right_shoulder", "right_elbow"),
+    ]
+    return np.asarray([np.linalg.norm(X[j[a]] - X[j[b]]) for a, b in pairs])
+
+
+def _sample(dets: list[list[np.ndarray]], max_frames: int) -> list[list[np.ndarray]]:
+    """Up to ``max_frames`` frames spread over those where two or more views detect someone."""
+    useful = [t for t, d in enumerate(dets) if sum(len(x) > 0 for x in d) >= 2]
+    if not useful:
+        return []
+    pick = [useful[int(i)] for i in np.round(np.linspace(0, len(useful) - 1, min(max_frames, len(useful))))]
+    return [dets[t] for t in sorted(set(pick))]
+
+
+def check_order(
+    geo: ViewGeometry,
+    sample: list[list[np.ndarray]],
+    source,
+    min_joints: int = MIN_JOINTS,
+    what: str = "detections",
+):
+    """``M (V, V)`` 2-view residuals (px) of the given order; refuses (``MocapInputError``) when another assignment
+    of the inputs to the cameras (up to 6 cameras) has less than half the summed residual (a pair triangulating
+    behind a camera counts as infinite)."""
+    V = geo.num_views
+    table = _pair_table(geo, sample, min_joints, orders=V <= 6)
+    ident = tuple(range(V))
+    M = _agreement(table, ident)
+    if V <= 6 and not np.all(np.nan_to_num(M, nan=0.0) <= PAIR_FRACTION / TAU_FRACTION * np.min(geo.tau)):
+        total = lambda o: float(np.nansum(_agreement(table, o)))  # noqa: E731
+        best = min(itertools.permutations(range(V)), key=total)
+        if best != ident and total(best) < 0.5 * total(ident):
+            order = ", ".join(f"input {best[c] + 1} → camera {geo.names[c]!r}" for c in range(V))
+            given = (
+                "behind the cameras in the given order"
+                if not np.isfinite(total(ident))
+                else f"{total(ident):.0f} px in the given order"
+            )
+            raise MocapInputError(
+                source,
+                f"the {what} triangulate far better with the inputs in another order than the calibration's "
+                f"cameras ({order}: 2-view residuals {total(best):.0f} px in all, {given}): give the videos in "
+                "the calibration's camera order",
+            )
+    return M
+
+
+def check_rig(rig, dets: list[list[np.ndarray]], source=None, max_frames: int = 12) -> list[str]:
+    """Refuse (``MocapInputError`` naming ``source``) a calibration the detections ``dets[t][v]`` contradict
+    (module docstring); returns notes. Uses up to ``max_frames`` frames spread over those where two or more views
+    detect someone; says nothing with fewer than three such frames."""
+    V = rig.num_views
+    sample = _sample(dets, max_frames)
+    if V < 2 or len(sample) < 3:
+        return []
+    geo = ViewGeometry(rig)
+    names = geo.names
+    limit = PAIR_FRACTION / TAU_FRACTION * geo.tau  # (V,) px
+    M = check_order(geo, sample, source)
+    notes = []
+    worst = np.nan_to_num(M / np.minimum(limit[:, None], limit[None, :]), nan=0.0)
+    if worst.max() > 1.0:
+        for c in range(V):
+            others = [M[c, b] for b in range(V) if b != c and not np.isnan(M[c, b])]
+            if others and min(others) > limit[c]:
+                raise MocapInputError(
+                    source,
+                    f"camera {names[c]!r}: its detections agree with no other camera's (2-view residual "
+                    f"{min(others):.0f} px at best, {limit[c]:.0f} px expected at most): its calibration does "
+                    "not match its video (camera order? another recording?)",
+                )
+        a, b = np.unravel_index(np.argmax(worst), worst.shape)
+        notes.append(f"cameras {names[a]!r} and {names[b]!r} agree poorly (2-view residual {M[a, b]:.0f} px)")
+    lengths = []
+    for frame in sample:
+        for p in multiview_persons(geo, frame):
+            lengths += [x for x in limb_lengths(p.X) if np.isfinite(x)]
+    if len(lengths) >= 4:
+        med = float(np.median(lengths))
+        if not 0.15 <= med <= 0.8:
+            hint = " (translations in millimetres? --calibration-units mm)" if 150 <= med <= 800 else ""
+            raise MocapInputError(
+                source,
+                f"the detections triangulate to limbs {med:.3g} m long (thigh and upper arm; 0.15-0.8 m for a "
+                f"person): the calibration's units disagree with metres{hint}",
+            )
+    return notes
+
+
+def check_rig_silhouettes(rig, centroids: np.ndarray, source=None) -> None:
+    """The camera-order check of :func:`check_order` on silhouette centroids ``(T, V, 2)`` (pixels of ``rig``;
+    NaN where a view sees no one): the centroids of one person's silhouettes are nearly the projections of one
+    point, so the inputs in the calibration's order triangulate them consistently, in front of the cameras."""
+    T, V = centroids.shape[:2]
+    dets = []
+    for t in range(T):
+        row = []
+        for v in range(V):
+            if np.all(np.isfinite(centroids[t, v])):
+                d = np.zeros((1, len(EVAL_JOINTS), 3))
+                d[0, 0] = [*centroids[t, v], 1.0]
+                row.append(d)
+            else:
+                row.append(np.zeros((0, len(EVAL_JOINTS), 3)))
+        dets.append(row)
+    sample = _sample(dets, T)
+    if V >= 2 and len(sample) >= 3:
+        check_order(ViewGeometry(rig), sample, source, min_joints=1, what="silhouettes")
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Keypoint folders → the subject
+
+
+class SubjectKeypoints(NamedTuple):
+    """The subject's detections ``keypoints (T, V, 15, 3)`` float32 (evaluation joints, :func:`select_subject`),
+    the ``layout`` read, and ``notes`` for the user."""
+
+    keypoints: np.ndarray
+    layout: str
+    notes: list[str]
+
+
+def load_subject(
+    folders,
+    rig,
+    frames: Sequence[int],
+    fps: float = 30.0,
+    layout: str = "auto",
+    hint: str | None = None,
+    check: bool = True,
+    total: int | None = None,
+) -> SubjectKeypoints:
+    """Read one keypoint folder per camera (OpenPose-format JSON, :mod:`jaxmocap.io.openpose`) for the frame
+    numbers ``frames``, matched by the frame number in the file names (a frame without a file has no detections;
+    with ``total``, the videos' frame count, a file numbered ``≥ total`` is refused); the layout (``"auto"``: :func:`jaxmocap.io.keypoints.detect_layout`, then ``hint`` — e.g. a
+    Pose2Sim ``Config.toml``'s — when the files leave it open); the calibration checks of :func:`check_rig`
+    (``check``) and the subject of :func:`select_subject`."""
+    from jaxmocap.io import keypoints as kp_mod
+    from jaxmocap.io.openpose import frame_files, read_people
+
+    notes: list[str] = []
+    raw = []  # raw[v][t]: list of (K, 3)
+    count, count_file, pooled = None, None, []
+    frames = [int(f) for f in frames]
+    for folder in folders:
+        files = frame_files(folder)
+        late = [f for f in files if total is not None and f >= total]
+        if late:
+            raise MocapInputError(
+                files[min(late)],
+                f"keypoints of frame {min(late)}, but the videos have {total} frames (0-{total - 1}): file "
+                "names must carry the videos' 0-based frame numbers",
+            )
+        missing = [t for t in frames if t not in files]
+        if missing:
+            shown = ", ".join(map(str, missing[:5])) + (", …" if len(missing) > 5 else "")
+            notes.append(
+                f"{folder}: no keypoint file for {len(missing)} of {len(frames)} frames ({shown}): no detections there"
+            )
+        per = []
+        for t in frames:
+            people = read_people(files[t]) if t in files else []
+            if people:
+                if count is None:
+                    count, count_file = people[0].shape[0], files[t]
+                elif people[0].shape[0] != count:
+                    raise MocapInputError(
+                        files[t], f"{people[0].shape[0]} keypoints per person, but {count_file} has {count}"
+                    )
+                if len(pooled) < 2000:
+                    pooled += people
+            per.append(people)
+        raw.append(per)
+    if count is None:
+        notes.append("the keypoint files hold no detected person")
+        empty = np.zeros((len(frames), rig.num_views, len(EVAL_JOINTS), 3), np.float32)
+        return SubjectKeypoints(empty, "none", notes)
+    where = folders[0]
+    if layout == "auto":
+        try:
+            found = kp_mod.detect_layout(count, pooled)
+        except ValueError as e:
+            raise MocapInputError(count_file, str(e)) from None
+        if found is None:
+            if hint is None or kp_mod.COUNTS[hint] != count:
+                raise MocapInputError(
+                    where,
+                    f"{count} keypoints per person: BODY_25 or BODY_25B? Say which with --keypoint-layout",
+                )
+            found = hint
+        elif hint is not None and hint != found:
+            notes.append(f"the keypoint files hold {count} keypoints per person: read as {found}, not {hint}")
+        layout = found
+    elif layout not in kp_mod.LAYOUTS:
+        raise ValueError(
+            f"unknown keypoint layout {layout!r}; choose one of auto, {', '.join(kp_mod.LAYOUTS)}"
+        )
+    elif kp_mod.COUNTS[layout] != count:
+        raise MocapInputError(
+            count_file, f"{count} keypoints per person, but the {layout} layout has {kp_mod.COUNTS[layout]}"
+        )
+    empty = np.zeros((0, len(EVAL_JOINTS), 3))
+    dets = [
+        [
+            kp_mod.eval_keypoints(np.stack(raw[v][t]), layout) if raw[v][t] else empty
+            for v in range(len(folders))
+        ]
+        for t in range(len(frames))
+    ]
+    if check:
+        notes += check_rig(rig, dets, where)
+    keypoints, report = select_subject(rig, dets, fps)
+    if rig.num_views > 1 and report["subject_frames"] == 0:
+        notes.append("no person is seen consistently by two cameras in any frame: no detections used")
+    return SubjectKeypoints(keypoints.astype(np.float32), layout, notes)
+
+
+def body_dimensions(keypoints: np.ndarray, rig) -> dict[str, float]:
+    """Subject dimensions (metres) for :func:`jaxmocap.geometry.body.build` from its detections ``(T, V, 15, 3)``
+    (evaluation joints, pixels of ``rig``): every joint triangulated per frame (confidence > ``C_MIN`` in at least
+    two views), then the median over frames of each limb length (both sides pooled), shoulder and hip widths, the
+    torso length ``|thorax − mid-hip|`` and the shoulder drop ``|thorax − mid-shoulder|``, with ``hip_drop = 0``:
+    the detector's hips define the pelvis centre (their middle), so the model's root and thorax coincide with the
+    middle of the detected hips and the detected neck. Dimensions no frame measures are left out."""
+    kp = np.asarray(keypoints, np.float64)
+    geo = ViewGeometry(rig)
+    views = list(range(rig.num_views))
+    X = np.stack(
+        [
+            geo.triangulate(views, np.stack([geo.normalise(v, kp[t, v]) for v in views]))
+            for t in range(len(kp))
+        ]
+    )  # (T, 15, 3)
+    j = {n: i for i, n in enumerate(EVAL_JOINTS)}
+
+    def dist(a, b):
+        return np.linalg.norm(X[:, j[a]] - X[:, j[b]], axis=-1)
+
+    def med(*ds):
+        v = np.concatenate(ds)
+        v = v[np.isfinite(v)]
+        return float(np.median(v)) if v.size else float("nan")
+
+    def sides(a, b):
+        return med(dist(f"left_{a}", f"left_{b}"), dist(f"right_{a}", f"right_{b}"))
+
+    mid_hip = 0.5 * (X[:, j["left_hip"]] + X[:, j["right_hip"]])
+    mid_shoulder = 0.5 * (X[:, j["left_shoulder"]] + X[:, j["right_shoulder"]])
+    dims = {
+        "upper_arm_length": sides("shoulder", "elbow"),
+        "forearm_length": sides("elbow", "wrist"),
+        "thigh_length": sides("hip", "knee"),
+        "shin_length": sides("knee", "ankle"),
+        "shoulder_width": med(dist("left_shoulder", "right_shoulder")),
+        "hip_width": med(dist("left_hip", "right_hip")),
+        "torso_length": med(np.linalg.norm(X[:, j["thorax"]] - mid_hip, axis=-1)),
+        "shoulder_drop": med(np.linalg.norm(X[:, j["thorax"]] - mid_shoulder, axis=-1)),
+        "hip_drop": 0.0,
+    }
+    return {n: v for n, v in dims.items() if np.isfinite(v) and (v > 0 or n == "hip_drop")}

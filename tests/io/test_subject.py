@@ -1,0 +1,149 @@
+"""The subject among the detections of every view and frame, and what the detections say about the calibration.
+
+References: the real Pose2Sim demo (its calibration, OpenPose BODY_25B detections of frames 0-9 and 37 with a
+bystander in cam01/cam02 and, in frame 37, the subject split into two detections in cam01, and Pose2Sim's own
+triangulated .trc), and people projected with ``cv2.projectPoints``."""
+
+import pathlib
+
+import cv2
+import numpy as np
+import pytest
+
+from jaxmocap.errors import MocapInputError
+from jaxmocap.geometry.body import EVAL_JOINTS
+from jaxmocap.io import keypoints as K
+from jaxmocap.io import openpose
+from jaxmocap.io import subject as S
+from jaxmocap.io.calibration import load_calibration
+from jaxmocap.io.pose2sim import reference_joints
+
+P2S = pathlib.Path(__file__).parents[1] / "data" / "calib" / "pose2sim"
+CALIB = P2S / "Calib_qualisys_converted_by_pose2sim_a948c20.toml"
+FOLDERS = [P2S / "pose" / f"cam0{c}_json" for c in range(1, 5)]
+FRAMES = [0, 1, 2, 37]
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return load_calibration(CALIB)
+
+
+def _project(rig, X: np.ndarray) -> np.ndarray:
+    """``(V, J, 2)`` pixels of world points ``X (J, 3)``, by OpenCV."""
+    out = []
+    for v in range(rig.num_views):
+        rvec, _ = cv2.Rodrigues(np.asarray(rig.R[v], np.float64))
+        uv, _ = cv2.projectPoints(
+            X, rvec, np.asarray(rig.t[v], np.float64), np.asarray(rig.K[v]), np.asarray(rig.dist[v])
+        )
+        out.append(uv.reshape(-1, 2))
+    return np.stack(out)
+
+
+def _dets(folders, frames, order=None):
+    """``dets[t][v]`` evaluation-joint detections; ``order(people)`` rearranges each file's people."""
+    out = []
+    for f in frames:
+        row = []
+        for folder in folders:
+            people = openpose.read_people(openpose.frame_files(folder)[f])
+            people = people if order is None else order(people)
+            row.append(np.stack([K.eval_keypoints(p, "BODY_25B") for p in people]))
+        out.append(row)
+    return out
+
+
+def test_subject_of_the_real_demo_whatever_the_order_of_people(rig):
+    """cam01/cam02 hold a bystander (and in frame 37 cam01 splits the subject in two, the larger half first): the
+    chosen detections lie on Pose2Sim's triangulation of the subject in every view (median ≤ 40 px on 1920 px
+    images; the bystander is > 400 px away), the split halves are joined, and reversing the people of every
+    file changes nothing."""
+    ref, _, _ = reference_joints(P2S / "S00_P00_T01_BalancingTrial_0-100.trc")
+    kp, report = S.select_subject(rig, _dets(FOLDERS, FRAMES), fps=60.0)
+    assert report["subject_frames"] == len(FRAMES) and report["views_per_frame"] == [4] * len(FRAMES)
+    for i, f in enumerate(FRAMES):
+        uv = _project(rig, ref[f])
+        for v in range(4):
+            ok = (kp[i, v, :, 2] > 0.3) & np.isfinite(uv[v]).all(axis=1)
+            ok[EVAL_JOINTS.index("head")] = False  # the reference's head is the head top and nose
+            assert ok.sum() >= 8
+            assert np.median(np.linalg.norm(kp[i, v, ok, :2] - uv[v, ok], axis=1)) < 40.0, (f, v)
+    # frame 37, cam01: the upper body of the first detection and the legs of the second
+    lower = [EVAL_JOINTS.index(j) for j in ("left_knee", "right_knee", "left_ankle", "right_ankle")]
+    upper = [EVAL_JOINTS.index(j) for j in ("thorax", "left_shoulder", "right_elbow")]
+    assert np.all(kp[3, 0, lower, 2] > 0.3) and np.all(kp[3, 0, upper, 2] > 0.3)
+    reordered, _ = S.select_subject(rig, _dets(FOLDERS, FRAMES, order=lambda p: p[::-1]), fps=60.0)
+    np.testing.assert_array_equal(reordered, kp)
+
+
+def test_the_subject_stays_tracked(rig):
+    """Synthetic: the subject (Pose2Sim's frame-0 joints) in every view, a bystander 2 m away seen by cam01 and
+    cam02 only; in frame 5 the subject is hidden from cam01/cam02, so that both people are seen by two cameras.
+    The subject is the person seen most over the frames; in frame 5 cam01/cam02 give no detection (not the
+    bystander's)."""
+    ref, _, _ = reference_joints(P2S / "S00_P00_T01_BalancingTrial_0-100.trc")
+    X = np.nan_to_num(ref[0])
+    other = X + np.array([2.0, 0.5, 0.0])
+    dets = []
+    for t in range(10):
+        moved = X + np.array([0.01 * t, 0.0, 0.0])
+        uv_s, uv_b = _project(rig, moved), _project(rig, other)
+        row = []
+        for v in range(4):
+            people = []
+            if v >= 2 or t != 5:
+                people.append(np.c_[uv_s[v], np.full(15, 0.9)])
+            if v < 2:
+                people.insert(0, np.c_[uv_b[v], np.full(15, 0.9)])  # the bystander listed first
+            row.append(np.stack(people))
+        dets.append(row)
+    kp, report = S.select_subject(rig, dets, fps=60.0)
+    for t in range(10):
+        uv = _project(rig, X + np.array([0.01 * t, 0.0, 0.0]))
+        for v in range(4):
+            if t == 5 and v < 2:
+                assert np.all(kp[t, v, :, 2] == 0)
+            else:
+                np.testing.assert_allclose(kp[t, v, :, :2], uv[v], atol=1e-6)
+    assert report["views_per_frame"][5] == 2
+
+
+def test_folders_in_another_order_are_refused(rig):
+    dets = _dets(FOLDERS, range(10))
+    assert S.check_rig(rig, dets, "keypoints") == []
+    swapped = [[row[1], row[0], row[2], row[3]] for row in dets]
+    with pytest.raises(MocapInputError, match=r"input 2 → camera 'cam_01', input 1 → camera 'cam_02'"):
+        S.check_rig(rig, swapped, "keypoints")
+    with pytest.raises(MocapInputError, match="another order"):
+        S.load_subject([FOLDERS[i] for i in (0, 1, 3, 2)], rig, range(10), 60.0)
+
+
+def test_millimetre_translations_seen_in_the_limbs(rig):
+    """Reprojection cannot tell a rig scaled by 1000 from the true one, the triangulated limbs can."""
+    import dataclasses
+
+    mm = dataclasses.replace(rig, t=np.asarray(rig.t) * 1000.0)
+    with pytest.raises(MocapInputError, match=r"limbs .* m long .*millimetres"):
+        S.check_rig(mm, _dets(FOLDERS, range(10)), "calib.toml")
+
+
+def test_load_subject_layout_and_missing_frames(rig, tmp_path):
+    """The layout comes from the files; a frame without a file has no detections; a file numbered past the
+    videos' last frame is refused."""
+    sub = S.load_subject(FOLDERS, rig, range(12), 60.0, total=100)
+    assert sub.layout == "BODY_25B" and sub.keypoints.shape == (12, 4, 15, 3)
+    assert np.all(sub.keypoints[10:, :, :, 2] == 0) and np.all(sub.keypoints[:10].max(axis=(1, 2))[:, 2] > 0)
+    assert any("no keypoint file for 2 of 12 frames (10, 11)" in n for n in sub.notes)
+    with pytest.raises(MocapInputError, match=r"keypoints of frame 37, but the videos have 20 frames"):
+        S.load_subject(FOLDERS, rig, range(12), 60.0, total=20)
+    with pytest.raises(MocapInputError, match="the COCO_17 layout has 17"):
+        S.load_subject(FOLDERS, rig, range(3), 60.0, layout="COCO_17")
+
+
+def test_body_dimensions_of_the_real_subject(rig):
+    sub = S.load_subject(FOLDERS, rig, range(10), 60.0)
+    d = S.body_dimensions(sub.keypoints, rig)
+    for k in ("upper_arm_length", "forearm_length", "thigh_length", "shin_length", "torso_length"):
+        assert 0.2 < d[k] < 0.6, (k, d[k])
+    assert d["shoulder_width"] > d["hip_width"] > 0.1 and d["hip_drop"] == 0.0
