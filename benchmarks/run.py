@@ -211,7 +211,7 @@ SCRIPTS: dict[str, Script] = {
     "compile_time": Script(
         "First-frame latency of jaxmocap track per model and filter family",
         "perf/compile_time.py",
-        "--out benchmarks/results/compile_time.md",
+        "--rounds 3 --out benchmarks/results/compile_time.md",
         writes=("compile_time.md",),
         slow=True,
     ),

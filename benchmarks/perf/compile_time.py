@@ -17,9 +17,12 @@ Two tables, both with the persistent compilation cache off (``JAXMOCAP_CACHE_DIR
 2. **First frame** (default): the wall time from process start to the end of a one-frame ``jaxmocap track`` run
    (import, features, initialisation, compilation of the filter step, one step, outputs) for every model × filter
    family: ``apf``, ``iapf``, ``partitioned`` with equal counts and with unequal counts (Li & Kulić's
-   1000,200,350,… on ``full25``), ``hierarchical``, ``hybrid`` (with the default cues less ``depth``, which has no gradient). With ``--before DIR`` (another checkout of the
-   project, e.g. a ``git worktree`` of an older commit) each configuration is run with that checkout and with this
-   one in alternation, so that both see the same machine load; the table gives both times and their ratio.
+   1000,200,350,… on ``full25``), ``hierarchical``, ``hybrid`` (with the default cues less ``depth``, which has no
+   gradient), and the process's CPU time (user + system, every thread: the work, whatever the load). With
+   ``--before DIR`` (another checkout of the project, e.g. a ``git worktree`` of an older commit) each
+   configuration is run with that checkout and with this one in alternation, so that both see the same machine
+   load; ``--rounds N`` repeats that N times (the order alternating) and the table gives the medians and the
+   median and range of the per-round ratios.
 
 3. **Step time** (``--steps``): the compiled filter step's run time per model × family, as the tracker runs it
    (initialised by the tracker's own pose fit on the first frame), the median over the 16 frames of the sequence
@@ -37,7 +40,7 @@ With ``--out FILE`` the table is written with the command that regenerates it le
 under the table names that checkout and its commit).
 
     python benchmarks/perf/compile_time.py [--models upper9 upper14 full25] [--filters apf iapf ...]
-                                           [--before DIR] [--programs [--isolate]] [--steps [--rounds 7]]
+                                           [--before DIR] [--rounds N] [--programs [--isolate]] [--steps]
                                            [--tracks --seeds 0 1 2] [--quick]
 """
 
@@ -47,6 +50,7 @@ import argparse
 import json
 import os
 import pathlib
+import resource
 import subprocess
 import sys
 import tempfile
@@ -187,37 +191,60 @@ def track_command(seq: pathlib.Path, model: str, family: str, out: pathlib.Path,
 
 def first_frame_seconds(
     checkout: pathlib.Path, seq: pathlib.Path, model: str, family: str, out: pathlib.Path
-):
-    """Wall time of a one-frame ``jaxmocap track`` in a new process with ``checkout``'s package."""
+) -> tuple[float | None, float | None, str | None]:
+    """``(wall s, CPU s, None)`` of a one-frame ``jaxmocap track`` in a new process with ``checkout``'s package
+    (CPU: user + system time of the process, every thread), or ``(None, None, why)`` when it failed."""
     cmd = track_command(seq, model, family, out, "--frames", "0:1")
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True, env=_env(checkout), cwd=str(out.parent))
     seconds = time.perf_counter() - t0
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     if proc.returncode != 0:
         tail = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or ["?"]
-        return None, tail[0]
-    return seconds, None
+        return None, None, tail[0]
+    return seconds, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime), None
 
 
-def first_frame_table(models, families, seq, before: pathlib.Path | None, work: pathlib.Path) -> list[str]:
-    head = "| model | filter | first frame s |"
-    rule = "|---|---|---|"
-    if before is not None:
-        head, rule = "| model | filter | before s | after s | after / before |", "|---|---|---|---|---|"
-    lines = [head, rule]
+def first_frame_table(
+    models, families, seq, before: pathlib.Path | None, work: pathlib.Path, rounds: int
+) -> list[str]:
+    trees = {"after": ROOT} if before is None else {"before": before, "after": ROOT}
+    if before is None:
+        lines = ["| model | filter | first frame s | CPU s |", "|---|---|---|---|"]
+    else:
+        lines = [
+            "| model | filter | before s | after s | after / before (median of rounds) | range of rounds "
+            "| before CPU s | after CPU s |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
     for m in models:
         for fam in families:
             out = work / f"run_{m}_{fam}"
-            after, why = first_frame_seconds(ROOT, seq, m, fam, out)
-            if before is None:
-                cell = f"{after:.1f}" if after is not None else f"failed: {why}"
-                lines.append(f"| {m} | {fam} | {cell} |")
+            wall: dict = {k: [] for k in trees}
+            cpu: dict = {k: [] for k in trees}
+            why = None
+            for r in range(rounds):  # the order of the checkouts alternates between rounds
+                for k in sorted(trees, reverse=r % 2 == 0):
+                    w, c, fail = first_frame_seconds(trees[k], seq, m, fam, out)
+                    why = why or (fail and f"{k}: {fail}")
+                    if w is not None:
+                        wall[k].append(w)
+                        cpu[k].append(c)
+            if why is not None:
+                lines.append(f"| {m} | {fam} | failed: {why} |")
+            elif before is None:
+                lines.append(
+                    f"| {m} | {fam} | {np.median(wall['after']):.1f} | {np.median(cpu['after']):.1f} |"
+                )
             else:
-                prev, why_b = first_frame_seconds(before, seq, m, fam, out)
-                a = f"{after:.1f}" if after is not None else f"failed: {why}"
-                b = f"{prev:.1f}" if prev is not None else f"failed: {why_b}"
-                r = f"{after / prev:.2f}" if after is not None and prev is not None else "–"
-                lines.append(f"| {m} | {fam} | {b} | {a} | {r} |")
+                ratio = np.asarray(wall["after"]) / np.asarray(wall["before"])
+                b, a = (np.median(wall[k]) for k in ("before", "after"))
+                cb, ca = (np.median(cpu[k]) for k in ("before", "after"))
+                lines.append(
+                    f"| {m} | {fam} | {b:.1f} | {a:.1f} | {np.median(ratio):.2f} | {ratio.min():.2f}–{ratio.max():.2f} "
+                    f"| {cb:.1f} | {ca:.1f} |"
+                )
             print(lines[-1], flush=True)
     return lines
 
@@ -375,7 +402,7 @@ def main(argv=None):
     ap.add_argument("--programs", action="store_true", help="the programs table instead of the first frame")
     ap.add_argument("--isolate", action="store_true", help="programs: each row in a fresh interpreter")
     ap.add_argument("--steps", action="store_true", help="the step-time table instead of the first frame")
-    ap.add_argument("--rounds", type=int, default=7, help="steps: rounds per configuration")
+    ap.add_argument("--rounds", type=int, help="rounds per configuration (first frame: 1, steps: 7)")
     ap.add_argument("--tracks", action="store_true", help="whole tracks of the sequence (of both checkouts)")
     ap.add_argument("--seeds", nargs="*", type=int, default=[0], help="tracks: the seeds")
     ap.add_argument("--quick", action="store_true", help="upper9 with the APF only (a smoke test)")
@@ -405,10 +432,10 @@ def main(argv=None):
             lines = tracks_table(a.models, a.filters, seq, a.before, a.seeds, work)
         elif a.steps:
             title = "Run time of the compiled filter step (median over the frames of a round)"
-            lines = step_table(a.models, a.filters, seq, a.before, a.rounds)
+            lines = step_table(a.models, a.filters, seq, a.before, a.rounds or 7)
         else:
             title = "First-frame latency of `jaxmocap track` (process start to one tracked frame, cache off)"
-            lines = first_frame_table(a.models, a.filters, seq, a.before, work)
+            lines = first_frame_table(a.models, a.filters, seq, a.before, work, a.rounds or 1)
         note = f"load average {load0:.2f} at the start, {os.getloadavg()[0]:.2f} at the end; {common.stamp()}"
         if a.before is not None:
             note += "\n\n" + _before_note(a.before)

@@ -152,9 +152,13 @@ class FilterBase:
 
 
 def _is_pytree_callable(fn) -> bool:
-    """True when ``fn`` is a pytree with children (a :class:`jax.tree_util.Partial`, a registered likelihood
-    object), False for a plain function (a single leaf)."""
-    return fn is not None and not jax.tree_util.treedef_is_leaf(jax.tree_util.tree_structure(fn))
+    """True when ``fn`` is a registered pytree (a :class:`jax.tree_util.Partial`, a likelihood object), even one
+    without leaves (its structure then compares by its own rule instead of by identity), False for a plain function
+    (a single leaf)."""
+    if fn is None:
+        return False
+    tree = jax.tree_util.tree_structure(fn)
+    return not (jax.tree_util.treedef_is_leaf(tree) and tree.num_leaves == 1)
 
 
 def register_filter(cls, data_fields: tuple[str, ...]):

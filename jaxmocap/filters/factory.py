@@ -102,6 +102,12 @@ def _group_label(model: body_mod.BodyModel, group: tuple[int, ...]) -> str:
     return model.segment_names[seg]
 
 
+def _proposal_centre(observation):
+    """The detection-driven proposal centre of an observation and whether it is valid (one function for every
+    filter built here, so that filters built twice have the same structure)."""
+    return observation.centre, observation.valid
+
+
 def make_filter(
     name: str,
     loglik: Callable,
@@ -136,7 +142,7 @@ def make_filter(
     common = dict(lower=model.lower, upper=model.upper, circular=circular)
     L = int(num_layers)
     scales = tuple(0.25 ** (l / (L - 1)) for l in range(L)) if L > 1 else (1.0,)
-    centre = lambda o: (o.centre, o.valid)
+    centre = _proposal_centre
     prior = dict(prior_mean=jnp.asarray(prior_mean, dt), prior_std=jnp.asarray(prior_std, dt))
     if name == "sir":
         return SIR(loglik, std, num_particles, **common)

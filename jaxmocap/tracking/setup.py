@@ -176,14 +176,19 @@ def _flatten_observation_loglik(f: ObservationLoglik):
     if f.params_data:
         children, constants = (params, f.coverage_lambda), None
     else:
-        children, constants = (), _Same(params, f.coverage_lambda)
+        # each array held by identity (a new tuple of the same arrays is the same structure)
+        children, constants = (), _Same(*(params or ()), f.coverage_lambda)
     aux = (geometry, config, _Same(f.d_max, f.model, f.rig), f.num_layers, constants)
     return children, aux
 
 
 def _unflatten_observation_loglik(aux, children) -> ObservationLoglik:
     geometry, config, coverage, num_layers, constants = aux
-    params, coverage_lambda = children if constants is None else constants.values
+    if constants is None:
+        params, coverage_lambda = children
+    else:
+        *held, coverage_lambda = constants.values
+        params = tuple(held) if geometry is not None else None
     lik = None
     if geometry is not None:
         cues, contour_points, chunk_size = config

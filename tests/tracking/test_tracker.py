@@ -352,6 +352,19 @@ def test_hybrid_filter_of_the_tracker_takes_the_fast_gradient_path(sequence, mon
     assert out[0].particles.shape == state.particles.shape
 
 
+def test_every_filter_built_twice_has_one_structure(sequence):
+    """The filter the tracker compiles ahead (around the rest pose) and the one it runs (around the initial pose)
+    are the same program: for every filter name, two filters built around different poses have one tree
+    structure (the pose, the likelihood's arrays are leaves or held by identity; the functions are the same)."""
+    for name in FILTERS:
+        cues = "foreground,edge_distance,coverage:4" if name in ("hybrid", "apf-refine") else None
+        opts = TrackOptions(filter=name, model="upper9", cues=cues)
+        run = tracker.Tracker(SequenceSource(sequence), os.devnull, opts, quiet=True)
+        x0 = np.asarray(run.model.rest_pose, np.float64)
+        a, b = run.setup.make_filter(x0), run.setup.make_filter(x0 + 0.1)
+        assert jax.tree_util.tree_structure(a) == jax.tree_util.tree_structure(b), name
+
+
 def test_tracker_gradient_is_that_of_its_batch_likelihood(sequence):
     """The tracker's per-particle value and gradient (flesh points projected as world points, the coverage term on
     the image cues' segment poses) are those of its batch likelihood (flesh points run by run, its own forward
