@@ -295,59 +295,36 @@ def matrix_to_euler(R, order: str, xp=np):
 #: A joint spec is a joint name (its position) or ``("end_mid", name)`` (midpoint of the joint and its end site).
 JointSpec = str | tuple[str, str]
 
-CMU_ASF_EVAL: dict[str, JointSpec] = {
-    "root": "root",
-    "thorax": "lowerneck",
-    "head": ("end_mid", "head"),
-    "left_shoulder": "lhumerus",
-    "left_elbow": "lradius",
-    "left_wrist": "lwrist",
-    "right_shoulder": "rhumerus",
-    "right_elbow": "rradius",
-    "right_wrist": "rwrist",
-    "left_hip": "lfemur",
-    "left_knee": "ltibia",
-    "left_ankle": "lfoot",
-    "right_hip": "rfemur",
-    "right_knee": "rtibia",
-    "right_ankle": "rfoot",
+#: The evaluation joints of the known CMU skeletons (module docstring), in the CMU ASF, the 3ds Max-friendly cgspeed
+#: BVH and the MotionBuilder-friendly cgspeed BVH: the joints on the body's axis by name, and each limb joint by
+#: the name its side prefixes (``l``/``r`` in the ASF, ``Left``/``Right`` in the BVH files).
+_CMU_AXIAL: dict[str, tuple[JointSpec, JointSpec, JointSpec]] = {
+    "root": ("root", "Hips", "Hips"),
+    "thorax": ("lowerneck", "lowerneck", "Neck"),
+    "head": (("end_mid", "head"), ("end_mid", "Head"), ("end_mid", "Head")),
+}
+_CMU_LIMB: dict[str, tuple[str, str, str]] = {
+    "shoulder": ("humerus", "Shoulder", "Arm"),
+    "elbow": ("radius", "Elbow", "ForeArm"),
+    "wrist": ("wrist", "Wrist", "Hand"),
+    "hip": ("femur", "Hip", "UpLeg"),
+    "knee": ("tibia", "Knee", "Leg"),
+    "ankle": ("foot", "Ankle", "Foot"),
 }
 
-CMU_BVH_3DSMAX_EVAL: dict[str, JointSpec] = {
-    "root": "Hips",
-    "thorax": "lowerneck",
-    "head": ("end_mid", "Head"),
-    "left_shoulder": "LeftShoulder",
-    "left_elbow": "LeftElbow",
-    "left_wrist": "LeftWrist",
-    "right_shoulder": "RightShoulder",
-    "right_elbow": "RightElbow",
-    "right_wrist": "RightWrist",
-    "left_hip": "LeftHip",
-    "left_knee": "LeftKnee",
-    "left_ankle": "LeftAnkle",
-    "right_hip": "RightHip",
-    "right_knee": "RightKnee",
-    "right_ankle": "RightAnkle",
-}
 
-CMU_BVH_MOTIONBUILDER_EVAL: dict[str, JointSpec] = {
-    "root": "Hips",
-    "thorax": "Neck",
-    "head": ("end_mid", "Head"),
-    "left_shoulder": "LeftArm",
-    "left_elbow": "LeftForeArm",
-    "left_wrist": "LeftHand",
-    "right_shoulder": "RightArm",
-    "right_elbow": "RightForeArm",
-    "right_wrist": "RightHand",
-    "left_hip": "LeftUpLeg",
-    "left_knee": "LeftLeg",
-    "left_ankle": "LeftFoot",
-    "right_hip": "RightUpLeg",
-    "right_knee": "RightLeg",
-    "right_ankle": "RightFoot",
-}
+def _cmu_specs(joint: str) -> tuple[JointSpec, JointSpec, JointSpec]:
+    """The specs of evaluation joint ``joint`` in the three CMU namings."""
+    if joint in _CMU_AXIAL:
+        return _CMU_AXIAL[joint]
+    side, limb = joint.split("_", 1)
+    asf, max_bvh, motionbuilder_bvh = _CMU_LIMB[limb]
+    return side[0] + asf, side.capitalize() + max_bvh, side.capitalize() + motionbuilder_bvh
+
+
+CMU_ASF_EVAL, CMU_BVH_3DSMAX_EVAL, CMU_BVH_MOTIONBUILDER_EVAL = (
+    {joint: _cmu_specs(joint)[i] for joint in EVAL_JOINTS} for i in range(3)
+)
 
 #: Known skeletons, tried in this order by :func:`eval_mapping`.
 KNOWN_MAPPINGS: dict[str, dict[str, JointSpec]] = {
