@@ -58,6 +58,49 @@ def _calib_convert(args) -> int:
     return 0
 
 
+#: The options of ``jaxmocap synth`` that :func:`jaxmocap.synth.generate.synthesize` takes by the same name (the
+#: flag's dashes as underscores): flag and ``add_argument`` settings.
+_SYNTH_OPTIONS: tuple[tuple[str, dict], ...] = (
+    (
+        "--motion",
+        dict(required=True, help="a .bvh or .amc clip of any skeleton, or 'demo' (the bundled CMU walk)"),
+    ),
+    ("--asf", dict(help="ASF skeleton of an .amc clip (default: SS.asf next to SS_TT.amc)")),
+    (
+        "--mapping",
+        dict(help="TOML file naming file joints for evaluation joints (default: by names, then shape)"),
+    ),
+    ("--scale", dict(type=float, help="metres per file unit (BVH default: detected from the legs)")),
+    ("--up-axis", dict(choices=("y", "z"), help="the file's up axis (BVH default: detected)")),
+    ("--rig", dict(default="stereo", help="stereo, frontal-lateral, ring4 or a calibration file")),
+    ("--frames", dict(help="source frame range A:B (default: the whole clip)")),
+    ("--fps", dict(type=float, default=30.0, help="output frame rate (default 30; subsamples)")),
+    ("--size", dict(help="image size WxH (default 640x480, or the calibration's)")),
+    ("--seed", dict(type=int, default=0, help="seed of every random number (default 0)")),
+    (
+        "--background",
+        dict(default="photo", help="photo, plain, an image file, or room (a 3D room with shadows)"),
+    ),
+    ("--clutter", dict(default="none", help="procedural clutter: none, low, medium, high or 0-1")),
+    ("--noise", dict(type=float, default=0.01, help="RGB noise sigma, 1 = full scale (default 0.01)")),
+    ("--depth-noise", dict(type=float, default=0.02, help="depth noise sigma in m (default 0.02)")),
+    ("--depth-smooth", dict(type=float, default=1.5, help="depth smoothing in px (default 1.5)")),
+    ("--illumination", dict(type=float, default=0.0, help="illumination change amplitude 0-1")),
+    ("--blur", dict(type=int, default=1, help="motion blur: source frames averaged (default 1)")),
+    (
+        "--clothing",
+        dict(default="plain", choices=("plain", "textured"), help="clothing texture (default plain)"),
+    ),
+    ("--licence", dict(help="licence line of the clip for meta.json (default: the CMU terms)")),
+    ("--overwrite", dict(action="store_true", help="replace an existing sequence in --out")),
+)
+
+
+def _synth_keywords() -> list[str]:
+    """The keywords of :func:`jaxmocap.synth.generate.synthesize` that :data:`_SYNTH_OPTIONS` set."""
+    return [flag[2:].replace("-", "_") for flag, _ in _SYNTH_OPTIONS]
+
+
 def _synth(args) -> int:
     from jaxmocap.synth import generate as synth
 
@@ -65,31 +108,9 @@ def _synth(args) -> int:
         if not args.quiet and (done == total or done % 10 == 0):
             print(f"\rframe {done}/{total}", end="\n" if done == total else "", flush=True)
 
+    options = {name: getattr(args, name) for name in _synth_keywords()}
     try:
-        seq = synth.synthesize(
-            args.motion,
-            args.out,
-            rig=args.rig,
-            asf=args.asf,
-            scale=args.scale,
-            mapping=args.mapping,
-            up_axis=args.up_axis,
-            frames=args.frames,
-            fps=args.fps,
-            size=args.size,
-            seed=args.seed,
-            background=args.background,
-            clutter=args.clutter,
-            noise=args.noise,
-            depth_noise=args.depth_noise,
-            depth_smooth=args.depth_smooth,
-            illumination=args.illumination,
-            blur=args.blur,
-            clothing=args.clothing,
-            overwrite=args.overwrite,
-            licence=args.licence,
-            progress=progress,
-        )
+        seq = synth.synthesize(out=args.out, progress=progress, **options)
     except MocapInputError:
         raise
     except ValueError as e:  # a bad option value
@@ -685,38 +706,8 @@ def build_parser() -> argparse.ArgumentParser:
         description="Render a synthetic multi-view sequence (RGB, mask, part labels, virtual depth, calibration, "
         "ground truth, body file) of a motion-capture clip; see README 'Sequence folder format'.",
     )
-    syn.add_argument(
-        "--motion",
-        required=True,
-        help="a .bvh or .amc clip of any skeleton, or 'demo' (the bundled CMU walk)",
-    )
-    syn.add_argument("--asf", help="ASF skeleton of an .amc clip (default: SS.asf next to SS_TT.amc)")
-    syn.add_argument(
-        "--mapping", help="TOML file naming file joints for evaluation joints (default: by names, then shape)"
-    )
-    syn.add_argument("--scale", type=float, help="metres per file unit (BVH default: detected from the legs)")
-    syn.add_argument("--up-axis", choices=("y", "z"), help="the file's up axis (BVH default: detected)")
-    syn.add_argument("--rig", default="stereo", help="stereo, frontal-lateral, ring4 or a calibration file")
-    syn.add_argument("--frames", help="source frame range A:B (default: the whole clip)")
-    syn.add_argument("--fps", type=float, default=30.0, help="output frame rate (default 30; subsamples)")
-    syn.add_argument("--size", help="image size WxH (default 640x480, or the calibration's)")
-    syn.add_argument("--seed", type=int, default=0, help="seed of every random number (default 0)")
-    syn.add_argument(
-        "--background", default="photo", help="photo, plain, an image file, or room (a 3D room with shadows)"
-    )
-    syn.add_argument("--clutter", default="none", help="procedural clutter: none, low, medium, high or 0-1")
-    syn.add_argument(
-        "--noise", type=float, default=0.01, help="RGB noise sigma, 1 = full scale (default 0.01)"
-    )
-    syn.add_argument("--depth-noise", type=float, default=0.02, help="depth noise sigma in m (default 0.02)")
-    syn.add_argument("--depth-smooth", type=float, default=1.5, help="depth smoothing in px (default 1.5)")
-    syn.add_argument("--illumination", type=float, default=0.0, help="illumination change amplitude 0-1")
-    syn.add_argument("--blur", type=int, default=1, help="motion blur: source frames averaged (default 1)")
-    syn.add_argument(
-        "--clothing", default="plain", choices=("plain", "textured"), help="clothing texture (default plain)"
-    )
-    syn.add_argument("--licence", help="licence line of the clip for meta.json (default: the CMU terms)")
-    syn.add_argument("--overwrite", action="store_true", help="replace an existing sequence in --out")
+    for flag, settings in _SYNTH_OPTIONS:
+        syn.add_argument(flag, **settings)
     syn.add_argument("--quiet", action="store_true", help="no progress output")
     syn.add_argument("--out", required=True, help="output sequence folder")
     syn.set_defaults(func=_synth)

@@ -32,7 +32,6 @@ which differs, before it).
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -47,7 +46,7 @@ FIRST_LAYERS = ("dynamics", "icondensation")
 
 
 @dataclasses.dataclass(frozen=True)
-class APF(base.FilterBase):
+class APF(icondensation.ImportanceOptions, base.FilterBase):
     """Annealed particle filter; with ``first_layer="icondensation"`` the IAPF.
 
     Data (traced): ``diffusion_std (D,)`` (Δ), ``lower, upper``, the values of ``schedule``
@@ -55,8 +54,9 @@ class APF(base.FilterBase):
     ``prior_mean``, ``prior_std`` and ``detection_std`` (None → Δ · s_0); ``loglik_batch`` when it is a pytree
     (:func:`jaxmocap.filters.base.register_filter`).
     Static: a plain ``loglik_batch(X, observation, layer)``, ``num_particles`` (per layer), the schedule's kind,
-    number of layers and bisection settings, ``first_layer`` (``"dynamics"`` or ``"icondensation"``), the
-    ICONDENSATION options (``dynamics_fraction``, ``detection_fraction``, ``proposal_centre``, ``weighting``),
+    number of layers and bisection settings, ``first_layer`` (``"dynamics"`` or ``"icondensation"``), the other
+    :class:`~jaxmocap.filters.icondensation.ImportanceOptions` (``dynamics_fraction``, ``detection_fraction``,
+    ``proposal_centre``, ``weighting``),
     ``resampling``, ``limit_mode``, ``circular``, ``recovery``, ``recovery_widen``.
     """
 
@@ -65,17 +65,12 @@ class APF(base.FilterBase):
     first_layer: str = "dynamics"
     prior_mean: jnp.ndarray | None = None
     prior_std: jnp.ndarray | None = None
-    detection_std: jnp.ndarray | None = None
-    dynamics_fraction: float = 0.5
-    detection_fraction: float = 0.4
-    proposal_centre: Callable | None = None
-    weighting: str = "mixture"
 
     def __post_init__(self):
         if self.first_layer not in FIRST_LAYERS:
             raise ValueError(f"unknown first_layer {self.first_layer!r}; choose one of {FIRST_LAYERS}")
         if self.first_layer == "icondensation":
-            icondensation.counts(self.num_particles, self.dynamics_fraction, self.detection_fraction)
+            self._check_importance(self.num_particles)
             if self.prior_mean is None or self.prior_std is None:
                 raise ValueError("the IAPF needs prior_mean and prior_std (the prior p0 of ICONDENSATION)")
 

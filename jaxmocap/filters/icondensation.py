@@ -42,6 +42,7 @@ from jaxmocap.filters.base import Info, State
 
 __all__ = [
     "ICondensation",
+    "ImportanceOptions",
     "Info",
     "State",
     "counts",
@@ -129,10 +130,34 @@ def importance_sample(
     return X, log_f - log_q
 
 
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class ImportanceOptions:
+    """The options of ICONDENSATION's importance function, keyword-only fields of :class:`ICondensation` and of
+    the IAPF (:class:`jaxmocap.filters.apf.APF` with ``first_layer="icondensation"``).
+
+    ``detection_std (D,)``: Δ_D of the detection-driven Gaussian (None → the std of the dynamics);
+    ``dynamics_fraction`` (α) and ``detection_fraction`` (β): the mixture's fractions (:func:`counts`);
+    ``proposal_centre``: ``observation -> (x^D, valid)`` (None → :func:`default_proposal_centre`); ``weighting``:
+    one of :data:`WEIGHTINGS` (module docstring).
+    """
+
+    detection_std: jnp.ndarray | None = None
+    dynamics_fraction: float = 0.5
+    detection_fraction: float = 0.4
+    proposal_centre: Callable | None = None
+    weighting: str = "mixture"
+
+    def _check_importance(self, num_particles: int) -> None:
+        """Raise on fractions that do not split ``num_particles`` or an unknown weighting."""
+        counts(num_particles, self.dynamics_fraction, self.detection_fraction)
+        if self.weighting not in WEIGHTINGS:
+            raise ValueError(f"unknown weighting {self.weighting!r}; choose one of {WEIGHTINGS}")
+
+
 def propose(filt, key: jax.Array, state: State, observation, dynamics_std: jnp.ndarray):
-    """:func:`importance_sample` for a filter with the ICONDENSATION fields (``num_particles``, the fractions,
-    ``proposal_centre``, ``detection_std`` (None: ``dynamics_std``), the prior, ``weighting``, resampling and
-    limits) from the weighted set ``state``, the dynamics diffusing by ``dynamics_std``."""
+    """:func:`importance_sample` for a filter with the :class:`ImportanceOptions`, ``num_particles``, the prior
+    (``prior_mean``, ``prior_std``), resampling and limits, from the weighted set ``state``, the dynamics diffusing
+    by ``dynamics_std``."""
     centre, valid = (filt.proposal_centre or default_proposal_centre)(observation)
     det_std = dynamics_std if filt.detection_std is None else filt.detection_std
     n = filt.num_particles
@@ -157,29 +182,22 @@ def propose(filt, key: jax.Array, state: State, observation, dynamics_std: jnp.n
 
 
 @dataclasses.dataclass(frozen=True)
-class ICondensation(base.FilterBase):
+class ICondensation(ImportanceOptions, base.FilterBase):
     """ICONDENSATION filter.
 
     Arrays (traced): ``diffusion_std (D,)`` (Δ, the dynamics), ``prior_mean (D,)`` (x_init), ``prior_std (D,)``
     (Σ0^{1/2}), ``detection_std (D,)`` (Δ_D; None → Δ), ``lower, upper`` (or None).
-    Static: ``loglik_batch`` (data when it is a pytree), ``num_particles``, ``dynamics_fraction`` (α), ``detection_fraction`` (β),
-    ``proposal_centre`` (None → :func:`default_proposal_centre`), ``weighting``, ``resampling``, ``limit_mode``,
-    ``circular``, ``recovery``, ``recovery_widen`` (as in :class:`jaxmocap.filters.sir.SIR`).
+    Static: ``loglik_batch`` (data when it is a pytree), ``num_particles``, the other :class:`ImportanceOptions`
+    (``dynamics_fraction``, ``detection_fraction``, ``proposal_centre``, ``weighting``), ``resampling``,
+    ``limit_mode``, ``circular``, ``recovery``, ``recovery_widen`` (as in :class:`jaxmocap.filters.sir.SIR`).
     """
 
     prior_mean: jnp.ndarray
     prior_std: jnp.ndarray
     num_particles: int
-    detection_std: jnp.ndarray | None = None
-    dynamics_fraction: float = 0.5
-    detection_fraction: float = 0.4
-    proposal_centre: Callable | None = None
-    weighting: str = "mixture"
 
     def __post_init__(self):
-        counts(self.num_particles, self.dynamics_fraction, self.detection_fraction)
-        if self.weighting not in WEIGHTINGS:
-            raise ValueError(f"unknown weighting {self.weighting!r}; choose one of {WEIGHTINGS}")
+        self._check_importance(self.num_particles)
 
     def init(self, key: jax.Array, mean: jnp.ndarray | None = None, std: jnp.ndarray | None = None) -> State:
         """Particles from ``N(mean, std²)``, by default the prior ``p0``."""

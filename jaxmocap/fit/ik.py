@@ -410,16 +410,14 @@ def fit_sequence(
     targets: jnp.ndarray,
     weights: jnp.ndarray | None = None,
     init: jnp.ndarray | None = None,
-    prior_weight: float = 1e-4,
-    mask: jnp.ndarray | None = None,
-    free: jnp.ndarray | None = None,
-    maxiter: int = 30,
-    tol: float = 1e-6,
+    **options,
 ) -> PoseFit:
     """Fit every frame of ``targets (T, J, 3)``, each starting from the previous frame's solution (``lax.scan``).
 
-    ``weights`` may be ``(J,)`` or ``(T, J)``; the first frame starts from ``init`` or :func:`root_init`.
-    Returns a :class:`PoseFit` with a leading ``T`` axis. Compiled once per model structure and shapes.
+    ``weights`` may be ``(J,)`` or ``(T, J)``; the first frame starts from ``init`` or :func:`root_init`;
+    ``options`` are the other keywords of :func:`fit_pose` (``prior_weight``, ``mask``, ``free``, ``prior_mean``,
+    ``maxiter``, ``tol``), the same for every frame. Returns a :class:`PoseFit` with a leading ``T`` axis.
+    Compiled once per model structure, shapes and ``maxiter``.
     """
     targets = jnp.asarray(targets, model.lower.dtype)
     T, J = targets.shape[0], targets.shape[1]
@@ -431,7 +429,7 @@ def fit_sequence(
 
     def step(x_prev, frame):
         y, w = frame
-        fit = fit_pose(model, y, w, x_prev, prior_weight, mask, free, None, maxiter, tol)
+        fit = fit_pose(model, y, w, x_prev, **options)
         return fit.state, fit
 
     _, fits = jax.lax.scan(step, x0, (targets, weights))

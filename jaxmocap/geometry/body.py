@@ -210,63 +210,72 @@ def _dim(dims: Mapping[str, object], key: str, side: str = ""):
     return jnp.asarray(DEFAULT_DIMENSIONS[key])
 
 
+class _Dof(NamedTuple):
+    """One state entry of a model being built: name, kind (``"R"``/``"P"``), axis, limits, rest value."""
+
+    name: str
+    kind: str
+    axis: np.ndarray
+    lower: object
+    upper: object
+    rest: jnp.ndarray
+
+
+class _Segment(NamedTuple):
+    """One segment of a model being built: name, parent index (−1: root), its DOF indices, offset, flesh shape
+    ``(kind, start, end, radius_start, radius_end)``."""
+
+    name: str
+    parent: int
+    dofs: tuple[int, ...]
+    offset: jnp.ndarray
+    shape: tuple
+
+
 @dataclasses.dataclass
 class _Builder:
     """Accumulates segments and DOFs; arrays may be traced (they are built with jax.numpy)."""
 
     dtype: object = jnp.float32
-    seg_names: list = dataclasses.field(default_factory=list)
-    parents: list = dataclasses.field(default_factory=list)
-    seg_dofs: list = dataclasses.field(default_factory=list)
-    offsets: list = dataclasses.field(default_factory=list)
-    dof_names: list = dataclasses.field(default_factory=list)
-    dof_kinds: list = dataclasses.field(default_factory=list)
-    axes: list = dataclasses.field(default_factory=list)
-    lower: list = dataclasses.field(default_factory=list)
-    upper: list = dataclasses.field(default_factory=list)
-    rest: list = dataclasses.field(default_factory=list)
-    shapes: list = dataclasses.field(default_factory=list)
+    segments: list[_Segment] = dataclasses.field(default_factory=list)
+    dofs: list[_Dof] = dataclasses.field(default_factory=list)
     joints: dict = dataclasses.field(default_factory=dict)
 
     def vec(self, *xs):
         return jnp.stack([jnp.asarray(v, dtype=self.dtype) for v in xs])
 
+    def _index(self, segment: str) -> int:
+        return [g.name for g in self.segments].index(segment)
+
     def segment(self, name, parent, offset, dofs=(), shape=(SHAPE_NONE, None, None, 0.0, 0.0)):
         """dofs: sequence of (dof name, kind, axis, lower, upper[, rest])."""
-        idx = []
+        first = len(self.dofs)
         for d in dofs:
             name_d, kind, axis, lo, hi = d[:5]
-            idx.append(len(self.dof_names))
-            self.dof_names.append(name_d)
-            self.dof_kinds.append(kind)
-            self.axes.append(np.asarray(axis, dtype=np.float64))
-            self.lower.append(lo)
-            self.upper.append(hi)
-            self.rest.append(jnp.asarray(d[5] if len(d) > 5 else 0.0, self.dtype))
-        self.seg_names.append(name)
-        self.parents.append(-1 if parent is None else self.seg_names.index(parent))
-        self.seg_dofs.append(tuple(idx))
-        self.offsets.append(offset)
-        self.shapes.append(shape)
-        return len(self.seg_names) - 1
+            rest = jnp.asarray(d[5] if len(d) > 5 else 0.0, self.dtype)
+            self.dofs.append(_Dof(name_d, kind, np.asarray(axis, dtype=np.float64), lo, hi, rest))
+        parent_index = -1 if parent is None else self._index(parent)
+        self.segments.append(_Segment(name, parent_index, tuple(range(first, len(self.dofs))), offset, shape))
+        return len(self.segments) - 1
 
     def joint(self, name, segment, point):
-        self.joints[name] = (self.seg_names.index(segment), point)
+        self.joints[name] = (self._index(segment), point)
 
     def build(self, model_name: str) -> BodyModel:
-        S = len(self.seg_names)
+        segs, dofs = self.segments, self.dofs
+        S = len(segs)
         topology = kinematics.Topology(
-            segment_names=tuple(self.seg_names),
-            parents=tuple(self.parents),
-            segment_dofs=tuple(self.seg_dofs),
-            dof_names=tuple(self.dof_names),
-            dof_kinds=tuple(self.dof_kinds),
+            segment_names=tuple(g.name for g in segs),
+            parents=tuple(g.parent for g in segs),
+            segment_dofs=tuple(g.dofs for g in segs),
+            dof_names=tuple(d.name for d in dofs),
+            dof_kinds=tuple(d.kind for d in dofs),
             rest_rotated=(False,) * S,
         )
         zero = self.vec(0.0, 0.0, 0.0)
         names = tuple(j for j in EVAL_JOINTS if j in self.joints)
         kinds, starts, ends, r0, r1 = [], [], [], [], []
-        for kind, a, b, ra, rb in self.shapes:
+        for kind, a, b, ra, rb in (g.shape for g in segs):
             kinds.append(kind)
             starts.append(zero if a is None else a)
             ends.append(zero if b is None else b)
@@ -274,11 +283,11 @@ class _Builder:
             r1.append(jnp.asarray(rb, self.dtype))
         return BodyModel(
             rest_rotation=jnp.broadcast_to(jnp.eye(3, dtype=self.dtype), (S, 3, 3)),
-            offset=jnp.stack(self.offsets).astype(self.dtype),
-            dof_axis=jnp.asarray(np.stack(self.axes), self.dtype),
-            lower=jnp.asarray(self.lower, self.dtype),
-            upper=jnp.asarray(self.upper, self.dtype),
-            rest_pose=jnp.stack(self.rest),
+            offset=jnp.stack([g.offset for g in segs]).astype(self.dtype),
+            dof_axis=jnp.asarray(np.stack([d.axis for d in dofs]), self.dtype),
+            lower=jnp.asarray([d.lower for d in dofs], self.dtype),
+            upper=jnp.asarray([d.upper for d in dofs], self.dtype),
+            rest_pose=jnp.stack([d.rest for d in dofs]),
             joint_point=jnp.stack([self.joints[n][1] for n in names]).astype(self.dtype),
             shape_start=jnp.stack(starts).astype(self.dtype),
             shape_end=jnp.stack(ends).astype(self.dtype),

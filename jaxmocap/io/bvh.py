@@ -119,22 +119,23 @@ class _Tokens:
             raise self.error(f"expected {word!r}, found {tok!r}", line)
         return line
 
-    def number(self, what: str) -> float:
+    def _converted(self, convert, kind: str, what: str):
+        """``(value, token, line)`` of the next token read by ``convert``; an error names ``what`` and the
+        ``kind`` expected when it does not read."""
         tok, line = self.next()
         try:
-            v = float(tok)
+            return convert(tok), tok, line
         except ValueError:
-            raise self.error(f"expected a number for {what}, found {tok!r}", line) from None
+            raise self.error(f"expected {kind} for {what}, found {tok!r}", line) from None
+
+    def number(self, what: str) -> float:
+        v, tok, line = self._converted(float, "a number", what)
         if not math.isfinite(v) or abs(v) > MAX_ABS:
             raise self.error(f"{what} is not finite or out of range: {tok!r}", line)
         return v
 
     def integer(self, what: str) -> int:
-        tok, line = self.next()
-        try:
-            v = int(tok)
-        except ValueError:
-            raise self.error(f"expected an integer for {what}, found {tok!r}", line) from None
+        v, _, line = self._converted(int, "an integer", what)
         if v < 0:
             raise self.error(f"{what} must not be negative, found {v}", line)
         return v

@@ -16,9 +16,17 @@ Evaluation (:meth:`Likelihood.batch`, what the filters call):
 2. geometry per particle (:meth:`Likelihood.geometry`): FK, flesh points (run by run of points on one segment,
    straight into camera coordinates), projection, facing test, one shared nearest-pixel index per sample set and
    the visible index through which one gather reads a colour and whether the sample is seen, computed once for all
-   cues;
-3. particles are processed in chunks of ``chunk_size`` (``lax.map`` over vmapped chunks), so that the
-   ``(chunk, V, P)`` intermediates stay in cache — on CPU this is 2–3× faster than one vmap over all particles.
+   cues of the table;
+3. the λ table: particles are processed in chunks of ``chunk_size`` (``lax.map`` over vmapped chunks), so that the
+   ``(chunk, V, P)`` intermediates stay in cache — on CPU this is 2–3× faster than one vmap over all particles —
+   and each particle's ``−Σ_c Σ_v λ_c,v k_c w_v E_c,v`` is one sum over its ``(C, V)`` table;
+4. a cue registered as ``separate`` (:class:`jaxmocap.likelihood.cues.CueSpec`: the silhouette ``coverage``) is
+   then subtracted as a term of its own, ``(λ_c k_c) · Σ_v w_v E_c,v``, its energy evaluated over all particles in
+   one vmap from the geometry it needs alone (its λ is the same in every view). The value is the same sum; this
+   order of float operations is the one the tracker's results were computed with, and tracks depend on it bit for
+   bit: inside the table the coverage energies compile together with the other cues' geometry (a few float32 ulps
+   apart in about half the entries), and the table's one sum rounds differently from the table followed by the
+   term; either sends the particles on another trajectory (the demo's overall error: 111.6 mm instead of 118.2).
 
 A :class:`Likelihood` is a pytree (model, rig, flesh points, weights, schedule and reference data are leaves:
 gradients reach body dimensions and cameras), and its configuration is static.
@@ -151,10 +159,9 @@ class Likelihood:
                 f"or (num_layers, num_cues, num_views) = {(num_layers, C, V)}, got {lam.shape}"
             )
         for c, cue in enumerate(cue_list):
-            if not cue.spec.per_view and not np.all(lam[:, c, :] == lam[:, c, :1]):
-                raise ValueError(
-                    f"cue {cue.name!r} has no views: its schedule must be the same for every view"
-                )
+            if (not cue.spec.per_view or cue.spec.separate) and not np.all(lam[:, c, :] == lam[:, c, :1]):
+                why = "is composed as a term of its own" if cue.spec.per_view else "has no views"
+                raise ValueError(f"cue {cue.name!r} {why}: its schedule must be the same for every view")
         w = np.ones(V, np.float32) if view_weights is None else np.asarray(view_weights, np.float32)
         if w.shape != (V,):
             raise ValueError(f"view_weights needs one weight per view ({V})")
@@ -180,11 +187,20 @@ class Likelihood:
     # -----------------------------------------------------------------------------------------------------------
     # Configuration helpers
 
-    def _needs(self) -> frozenset:
+    def _needs(self, which: Sequence[int] | None = None) -> frozenset:
+        """The geometry the cues ``which`` (indices; default all) read."""
         out: set = set()
-        for c in self.cues:
-            out |= c.spec.needs(c.param_dict)
+        for c in range(len(self.cues)) if which is None else which:
+            out |= self.cues[c].spec.needs(self.cues[c].param_dict)
         return frozenset(out)
+
+    def _table_cues(self) -> tuple[int, ...]:
+        """Indices of the cues composed in the λ table (every cue not registered as ``separate``)."""
+        return tuple(c for c, cue in enumerate(self.cues) if not cue.spec.separate)
+
+    def _separate_cues(self) -> tuple[int, ...]:
+        """Indices of the cues composed as terms of their own after the table (module docstring, step 4)."""
+        return tuple(c for c, cue in enumerate(self.cues) if cue.spec.separate)
 
     def _context(self, c: int, aux=None) -> cues.CueContext:
         cue = self.cues[c]
@@ -215,15 +231,16 @@ class Likelihood:
     # -----------------------------------------------------------------------------------------------------------
     # Geometry
 
-    def pose_stage(self, x: jnp.ndarray) -> dict:
+    def pose_stage(self, x: jnp.ndarray, needs: frozenset | None = None) -> dict:
         """The small per-particle part of the geometry of ``x (D,)``: segment poses ``R, t``, and as the cues need
-        them the joints ``(J, 3)``, the world primitives and each view's occluding contours (cone generators as lines,
-        ellipsoid outlines as ellipses; sampled by :meth:`_contour_points`).
+        them (``needs``: default what every cue reads) the joints ``(J, 3)``, the world primitives and each view's
+        occluding contours (cone generators as lines, ellipsoid outlines as ellipses; sampled by
+        :meth:`_contour_points`).
 
         :meth:`batch` runs this over all particles at once (many small operations: better amortised over a large
         batch) and :meth:`geometry_from_pose` in chunks (long per-point arrays: better kept in cache).
         """
-        needs = self._needs()
+        needs = self._needs() if needs is None else needs
         R, t = body.segment_poses(self.model, x)
         out = {"R": R, "t": t}
         if "facing" in needs:
@@ -269,11 +286,16 @@ class Likelihood:
         return jnp.concatenate(pts, axis=1) if len(pts) > 1 else pts[0]
 
     def geometry_from_pose(
-        self, pose: dict, image_shape: tuple[int, int] | None = None, *, by_runs: bool = True
+        self,
+        pose: dict,
+        image_shape: tuple[int, int] | None = None,
+        needs: frozenset | None = None,
+        *,
+        by_runs: bool = True,
     ) -> cues.Geometry:
-        """Projected geometry of one particle from its :meth:`pose_stage` (see :meth:`geometry`; ``by_runs``:
-        :meth:`_surface_geometry`)."""
-        needs = self._needs()
+        """Projected geometry of one particle from its :meth:`pose_stage` (see :meth:`geometry`; ``needs`` as
+        there; ``by_runs``: :meth:`_surface_geometry`)."""
+        needs = self._needs() if needs is None else needs
         V = self.rig.num_views
         g = {}
         if "joints" in pose:
@@ -375,27 +397,31 @@ class Likelihood:
             out.append(None if p is None else p(obs, self._context(c), cache))
         return tuple(out)
 
-    def view_energies(
-        self, x: jnp.ndarray, obs: Observation, aux: tuple | None = None, *, by_runs: bool = True
-    ) -> jnp.ndarray:
+    def view_energies(self, x: jnp.ndarray, obs: Observation, aux: tuple | None = None) -> jnp.ndarray:
         """``(C, V)`` weighted cue energies ``k_c w_v E_c,v`` of one particle (before the schedule); a view-free
-        cue has ``k_c E_c`` in column 0 and zeros elsewhere. ``aux``: :meth:`prepare` (computed here if None);
-        ``by_runs``: see :meth:`_surface_geometry`."""
-        aux = self.prepare(obs) if aux is None else aux
-        return self.energies_from_pose(self.pose_stage(x), obs, aux, by_runs=by_runs)
+        cue has ``k_c E_c`` in column 0 and zeros elsewhere. ``aux``: :meth:`prepare` (computed here if None)."""
+        return self._energies_from_pose(self.pose_stage(x), obs, self.prepare(obs) if aux is None else aux)
 
-    def energies_from_pose(
-        self, pose: dict, obs: Observation, aux: tuple, *, by_runs: bool = True
+    def _energies_from_pose(
+        self,
+        pose: dict,
+        obs: Observation,
+        aux: tuple,
+        which: Sequence[int] | None = None,
+        by_runs: bool = True,
     ) -> jnp.ndarray:
-        """:meth:`view_energies` of one particle from its :meth:`pose_stage` and the :meth:`prepare` of ``obs``."""
+        """``(len(which), V)`` rows of :meth:`view_energies` for the cues ``which`` (default all), from a
+        :meth:`pose_stage` that has what they need (``by_runs``: :meth:`_surface_geometry`)."""
         if (
             self.cue_weights is None
         ):  # the cues' own weights are not part of the structure (Cue: compare=False)
             raise ValueError("a Likelihood needs cue_weights (C,): build it with Likelihood.create")
-        g = self.geometry_from_pose(pose, obs.image_shape, by_runs=by_runs)
+        which = range(len(self.cues)) if which is None else which
+        g = self.geometry_from_pose(pose, obs.image_shape, self._needs(which), by_runs=by_runs)
         V = self.rig.num_views
         rows = []
-        for c, cue in enumerate(self.cues):
+        for c in which:
+            cue = self.cues[c]
             e = cue.spec.energy(g, obs, self._context(c, aux[c]))
             k = self.cue_weights[c]
             if cue.spec.per_view:
@@ -411,37 +437,99 @@ class Likelihood:
     def layer_lambda(self, layer=0) -> jnp.ndarray:
         """``(C, V)`` λ of annealing layer ``layer``: an int (traced or static) or the
         :class:`jaxmocap.filters.base.Layer` the annealed filters pass (its ``index`` is used)."""
-        layer = getattr(layer, "index", layer)
-        return self.schedule[jnp.clip(layer, 0, self.schedule.shape[0] - 1)]
+        return self.schedule[self._layer_index(layer)]
+
+    def _layer_index(self, layer):
+        return jnp.clip(getattr(layer, "index", layer), 0, self.schedule.shape[0] - 1)
+
+    def _table_lambda(self, layer) -> jnp.ndarray:
+        """``(C_table, V)`` λ of the table's cues at ``layer``: the table's columns of the schedule, taken as static
+        slices of its runs of consecutive cues (with constant parameters XLA then compiles the table as it compiles
+        a likelihood of those cues alone; a gather of the same columns gives another program and other float
+        rounding), then the layer's row."""
+        table = self._table_cues()
+        schedule = self.schedule
+        if len(table) < len(self.cues):
+            starts = [c for c in table if c - 1 not in table]
+            stops = [c + 1 for c in table if c + 1 not in table]
+            schedule = jnp.concatenate([schedule[:, a:b] for a, b in zip(starts, stops, strict=True)], axis=1)
+        return schedule[self._layer_index(layer)]
+
+    def _table_loglik(
+        self, pose: dict, obs: Observation, aux: tuple, lam_table: jnp.ndarray, by_runs: bool = True
+    ) -> jnp.ndarray:
+        """``−Σ_c Σ_v λ_c,v k_c w_v E_c,v`` over the cues of the table, of one particle's :meth:`pose_stage` (with
+        what those cues need) and their λ (:meth:`_table_lambda`)."""
+        return -jnp.sum(lam_table * self._energies_from_pose(pose, obs, aux, self._table_cues(), by_runs))
+
+    def _separate_energy(
+        self, c: int, x: jnp.ndarray, obs: Observation, aux: tuple, pose: dict | None = None
+    ) -> jnp.ndarray:
+        """``Σ_v w_v E_c,v`` of the separate cue ``c`` at one particle ``x (D,)``, from the geometry it reads
+        alone (``pose``: a :meth:`pose_stage` of ``x`` with what the cue needs, computed here if None)."""
+        cue = self.cues[c]
+        needs = self._needs((c,))
+        pose = self.pose_stage(x, needs) if pose is None else pose
+        g = self.geometry_from_pose(pose, obs.image_shape, needs)
+        e = cue.spec.energy(g, obs, self._context(c, aux[c]))
+        return jnp.sum(self.view_weights * e) if cue.spec.per_view else e
+
+    def _separate_weight(self, c: int, layer) -> jnp.ndarray:
+        """``λ_c(l) k_c`` of the separate cue ``c`` at ``layer`` (its λ is the same in every view): the ``(L,)``
+        column ``λ_c k_c``, then the layer's entry."""
+        return (self.schedule[:, c, 0] * self.cue_weights[c])[self._layer_index(layer)]
 
     def log_likelihood(
         self, x: jnp.ndarray, obs: Observation, layer=0, aux: tuple | None = None, *, by_runs: bool = True
     ) -> jnp.ndarray:
-        """Scalar ``log p_l(z | x)`` of one particle at annealing layer ``layer`` (see :meth:`layer_lambda`;
-        ``by_runs``: :meth:`_surface_geometry`)."""
-        return -jnp.sum(self.layer_lambda(layer) * self.view_energies(x, obs, aux, by_runs=by_runs))
+        """Scalar ``log p_l(z | x)`` of one particle at annealing layer ``layer`` (see :meth:`layer_lambda`), composed
+        as :meth:`batch` composes it, from one :meth:`pose_stage` with what every cue needs (one forward kinematics,
+        and one reverse pass through it when differentiated); ``by_runs``: :meth:`_surface_geometry`."""
+        aux = self.prepare(obs) if aux is None else aux
+        table = self._table_cues()
+        pose = self.pose_stage(x)
+        ll = self._table_loglik(pose, obs, aux, self._table_lambda(layer), by_runs) if table else 0.0
+        for c in self._separate_cues():
+            ll = ll - self._separate_weight(c, layer) * self._separate_energy(c, x, obs, aux, pose)
+        return ll
 
     def batch(self, X: jnp.ndarray, obs: Observation, layer=0) -> jnp.ndarray:
         """``(N,)`` log-likelihoods of particles ``X (N, D)``; non-finite values become −inf.
 
-        The observation-only work is done once; particles go through in chunks of ``chunk_size`` (padded with
-        copies of the first particle, whose results are dropped).
+        The observation-only work is done once; particles go through the λ table in chunks of ``chunk_size``
+        (padded with copies of the first particle, whose results are dropped), then the separate cues are
+        subtracted (module docstring).
         """
         aux = self.prepare(obs)
-        lam = self.layer_lambda(layer)
+        table, separate = self._table_cues(), self._separate_cues()
+        N, D = X.shape
+        if table:
+            lam_table = self._table_lambda(layer)
+            ll = self._chunked(lambda p: self._table_loglik(p, obs, aux, lam_table), X, self._needs(table))
+            ll = jnp.where(jnp.isfinite(ll), ll, -jnp.inf)
+        else:
+            ll = jnp.zeros((N,), X.dtype)
+        if not separate:
+            return ll
+        for c in separate:
+            e = jax.vmap(lambda x, c=c: self._separate_energy(c, x, obs, aux))(X)
+            ll = ll - self._separate_weight(c, layer) * e
+        return jnp.where(jnp.isfinite(ll), ll, -jnp.inf)
+
+    def _chunked(self, f, X: jnp.ndarray, needs: frozenset) -> jnp.ndarray:
+        """``(N,)`` values of ``f(pose)`` for the :meth:`pose_stage` of each particle of ``X (N, D)``: the pose stage
+        over all particles, then ``f`` in chunks of ``chunk_size`` (module docstring, steps 2–3)."""
         N, D = X.shape
         c = self.chunk_size
         n = 1 if c <= 0 or N <= c else -(-N // c)
         if n > 1 and n * c > N:
             X = jnp.concatenate([X, jnp.broadcast_to(X[:1], (n * c - N, D))])
-        pose = jax.vmap(self.pose_stage)(X)
-        f = jax.vmap(lambda p: -jnp.sum(lam * self.energies_from_pose(p, obs, aux)))
+        pose = jax.vmap(lambda x: self.pose_stage(x, needs))(X)
+        f = jax.vmap(f)
         if n == 1:
-            ll = f(pose)
-        else:
-            chunks = jax.tree_util.tree_map(lambda a: a.reshape((n, c) + a.shape[1:]), pose)
-            ll = jax.lax.map(f, chunks).reshape(-1)[:N]
-        return jnp.where(jnp.isfinite(ll), ll, -jnp.inf)
+            return f(pose)
+        chunks = jax.tree_util.tree_map(lambda a: a.reshape((n, c) + a.shape[1:]), pose)
+        return jax.lax.map(f, chunks).reshape(-1)[:N]
 
     def batch_value_and_grad(
         self, X: jnp.ndarray, obs: Observation, layer=0

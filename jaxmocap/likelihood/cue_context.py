@@ -70,22 +70,27 @@ def _unit_scale(a: jnp.ndarray) -> float:
     return 1.0 / 255.0 if a.dtype == jnp.uint8 else 1.0
 
 
-def _surface_values(obs_map, g: Geometry, ctx: CueContext, unit: bool = True, points: slice = slice(None)):
-    """``(values (V, P'), inside (V, P'))`` of a ``(V, H, W)`` map at the surface points ``points`` (a static
-    slice, default all; nearest or bilinear)."""
+def _map_values(obs_map, uv, index, inside, ctx: CueContext, unit: bool):
+    """``(values (V, P), inside (V, P))`` of a ``(V, H, W)`` map at one sample set: bilinear at the pixels
+    ``uv (V, P, 2)`` when the cue has ``bilinear=True``, else at the shared nearest-pixel ``index (V, P)`` with its
+    ``inside`` mask; ``unit`` maps a stored unit map to [0, 1] (:func:`_unit_scale`)."""
     s = _unit_scale(obs_map) if unit else 1.0
     if ctx.params.get("bilinear", False):
-        i00, fu, fv, inside = maps.bilinear_index(g.surface_uv[:, points], obs_map.shape)
+        i00, fu, fv, inside = maps.bilinear_index(uv, obs_map.shape)
         return maps.gather_bilinear(obs_map, i00, fu, fv, s), inside
-    return maps.gather(obs_map, g.surface_index[:, points], s), g.surface_inside[:, points]
+    return maps.gather(obs_map, index, s), inside
+
+
+def _surface_values(obs_map, g: Geometry, ctx: CueContext, unit: bool = True, points: slice = slice(None)):
+    """:func:`_map_values` at the surface points ``points`` (a static slice, default all; the nearest-pixel
+    fields may be absent when the cue reads bilinearly)."""
+    pick = lambda a: None if a is None else a[:, points]
+    return _map_values(obs_map, pick(g.surface_uv), pick(g.surface_index), pick(g.surface_inside), ctx, unit)
 
 
 def _contour_values(obs_map, g: Geometry, ctx: CueContext, unit: bool = True):
-    s = _unit_scale(obs_map) if unit else 1.0
-    if ctx.params.get("bilinear", False):
-        i00, fu, fv, inside = maps.bilinear_index(g.contour_uv, obs_map.shape)
-        return maps.gather_bilinear(obs_map, i00, fu, fv, s), inside
-    return maps.gather(obs_map, g.contour_index, s), g.contour_inside
+    """:func:`_map_values` at the occluding-contour points."""
+    return _map_values(obs_map, g.contour_uv, g.contour_index, g.contour_inside, ctx, unit)
 
 
 def _segment_points(ctx: CueContext, segment: int) -> slice:

@@ -422,8 +422,10 @@ class CueSpec(NamedTuple):
     """A registered cue: ``energy(g, obs, ctx)``, whether it is per view, the geometry it needs (a function of its
     parameters), the observation fields it reads, whether it is differentiable (``"yes"``, ``"bilinear"``,
     ``"soft"`` = with ``soft=True`` and ``bilinear=True``, ``"no"``), an optional per-call
-    ``prepare(obs, ctx, cache)`` and an optional reference builder (see
-    :meth:`jaxmocap.likelihood.compose.Likelihood.with_references`)."""
+    ``prepare(obs, ctx, cache)``, an optional reference builder (see
+    :meth:`jaxmocap.likelihood.compose.Likelihood.with_references`) and ``separate``: whether the likelihood
+    composes the cue as a term of its own, after the sum of the λ table (the ``coverage`` cue; see
+    :class:`jaxmocap.likelihood.compose.Likelihood`)."""
 
     energy: Callable
     per_view: bool
@@ -432,6 +434,7 @@ class CueSpec(NamedTuple):
     differentiable: str
     prepare: Callable | None = None
     reference: str | None = None
+    separate: bool = False
 
 
 def _surface_needs(p):
@@ -492,7 +495,7 @@ CUES: dict[str, CueSpec] = {
     "ground": CueSpec(ground, False, _fixed("joints"), (), "yes"),
     "interpenetration": CueSpec(interpenetration, False, _fixed("primitives"), (), "yes"),
     "coverage": CueSpec(
-        coverage.coverage, True, _fixed("primitives"), ("foreground",), "yes", coverage.prepare
+        coverage.coverage, True, _fixed("primitives"), ("foreground",), "yes", coverage.prepare, separate=True
     ),
 }
 

@@ -3,10 +3,10 @@
 :class:`TrackSetup` is what ``jaxmocap track`` (:class:`jaxmocap.tracking.tracker.Tracker`), the experiment sweep
 (:mod:`jaxmocap.tracking.sweep`) and the PARSEC run build on. It validates the options against the input, builds
 the body model (:func:`jaxmocap.tracking.options.build_model`), the cues (:func:`~jaxmocap.tracking.options.default_cues`
-unless given), the feature pipeline (:class:`jaxmocap.tracking.features.FeatureBuilder`), the likelihood
-(:func:`observation_loglik`: a :class:`jaxmocap.likelihood.compose.Likelihood` over the image cues with the λ_c(l)
-table of the filter's annealing variant, and the ``coverage`` cue of :mod:`jaxmocap.likelihood.coverage` with its
-column of the same table) and, once the initial pose is known, the filter (:func:`jaxmocap.filters.factory.make_filter`).
+unless given), the feature pipeline (:class:`jaxmocap.tracking.features.FeatureBuilder`), the likelihood (one
+:class:`jaxmocap.likelihood.compose.Likelihood` over every cue, the silhouette ``coverage`` cue included, with the
+λ_c(l) table of the filter's annealing variant; :func:`observation_loglik` hands it to the filter) and, once the
+initial pose is known, the filter (:func:`jaxmocap.filters.factory.make_filter`).
 
 The frame loop (:mod:`jaxmocap.tracking.loop`) reads these hooks of a setup: ``observe(t)``,
 ``initial_state(t, masks, fd)``, ``set_references(x0, obs)``, ``make_filter(x0)``, ``start(filter, key, x0,
@@ -25,10 +25,8 @@ import numpy as np
 from jaxmocap.choices import parse_frames
 from jaxmocap.errors import MocapInputError
 from jaxmocap.filters.factory import GRADIENT_FILTERS, make_filter, partition_counts
-from jaxmocap.geometry import flesh
 from jaxmocap.io.sources import BadFrame
 from jaxmocap.likelihood import compose as lk
-from jaxmocap.likelihood.coverage import coverage_energy, d_max_of, primitives_energy
 from jaxmocap.likelihood.cues import DIFFERENTIABLE
 from jaxmocap.tracking import init as init_mod
 from jaxmocap.tracking.features import FeatureBuilder, TrackObservation
@@ -60,23 +58,15 @@ def frame_range(spec: str | None, num_frames: int) -> list[int]:
 
 
 def observation_loglik(
-    lik: lk.Likelihood | None,
-    coverage_lambda=None,
-    d_max=None,
-    num_layers: int = 1,
-    model=None,
-    rig=None,
-    params_data: bool = True,
+    lik: lk.Likelihood, num_layers: int = 1, params_data: bool = True
 ) -> ObservationLoglik:
-    """``loglik(X, tobs, layer) -> (N,)`` of a :class:`TrackObservation`: ``lik.batch`` on its image observation,
-    minus the ``coverage`` cue ``λ_cov(l) Σ_v E_v`` (:func:`jaxmocap.likelihood.coverage.coverage_energy`) when
-    ``coverage_lambda (L,)`` is given (the tracker adds it after the image cues' sum: the order of its float
-    operations, on which the tracks depend bit for bit). It carries ``batch_value_and_grad(X, tobs, layer)``
-    (per-particle gradients in one ``vmap``), which the gradient filters take
+    """``loglik(X, tobs, layer) -> (N,)`` of a :class:`TrackObservation`: ``lik.batch`` on its image observation
+    (the layer index clipped to ``num_layers``). It carries ``batch_value_and_grad(X, tobs, layer)``
+    (:meth:`jaxmocap.likelihood.compose.Likelihood.batch_value_and_grad`), which the gradient filters take
     (:func:`jaxmocap.likelihood.gradients.batch_value_and_grad`). The result is a pytree
-    (:class:`ObservationLoglik`): held by a filter, its likelihood's parameters (cue weights, λ, view weights, the
-    coverage λ) are data of the filter's step (constants with ``params_data=False``, see :class:`ObservationLoglik`)."""
-    return ObservationLoglik(lik, coverage_lambda, d_max, model, rig, num_layers, params_data)
+    (:class:`ObservationLoglik`): held by a filter, its likelihood's parameters (cue weights, λ, view weights) are
+    data of the filter's step (constants with ``params_data=False``, see :class:`ObservationLoglik`)."""
+    return ObservationLoglik(lik, num_layers, params_data)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -84,64 +74,28 @@ class ObservationLoglik:
     """The tracker's likelihood (:func:`observation_loglik`) as a pytree.
 
     Data (traced when a filter holding it is an argument of ``jit``): the parameters of the likelihood, its cue
-    weights ``k_c (C,)``, λ table ``(L, C, V)`` and view weights ``(V,)``, and ``coverage_lambda (L,)``. Static:
-    ``num_layers`` and the geometry — the likelihood's body model, rig, flesh points and references, and the
-    coverage cue's ``model``, ``rig`` and ``d_max`` — held by identity (:class:`_Same`), so that they stay constants
-    of the compiled program (folded by XLA as before: tracks identical bit for bit) while a likelihood that differs
-    only in its parameters (``dataclasses.replace``) reuses it. Hashed by identity.
+    weights ``k_c (C,)``, λ table ``(L, C, V)`` and view weights ``(V,)``. Static: ``num_layers`` and the
+    likelihood's geometry — body model, rig, flesh points and references — held by identity (:class:`_Same`), so
+    that they stay constants of the compiled program (folded by XLA as before: tracks identical bit for bit) while
+    a likelihood that differs only in its parameters (``dataclasses.replace``) reuses it. Hashed by identity.
 
     ``params_data=False`` keeps the parameters constants too (a new value compiles anew): the tracker's gradient
     filters use it, since XLA compiles the reverse pass of ``λ_c k_c w_v E_c,v`` with traced factors into another
     order of float operations than with constant ones (the forward pass is the same bit for bit either way), and
     their tracks stay those of a program with the parameters folded in."""
 
-    lik: lk.Likelihood | None
-    coverage_lambda: jnp.ndarray | None
-    d_max: jnp.ndarray | None
-    model: object
-    rig: object
+    lik: lk.Likelihood
     num_layers: int = 1
     params_data: bool = True
 
     def _layer(self, layer):
         return jnp.clip(jnp.asarray(getattr(layer, "index", layer)), 0, self.num_layers - 1)
 
-    def _cover(self, x, tobs):
-        im = tobs.image
-        return jnp.sum(coverage_energy(self.model, self.rig, x, im.silhouette, im.silhouette_w, self.d_max))
-
     def __call__(self, X, tobs, layer):
-        l = self._layer(layer)
-        ll = jnp.zeros(X.shape[0], X.dtype) if self.lik is None else self.lik.batch(X, tobs.image, l)
-        if self.coverage_lambda is not None:
-            ll = ll - self.coverage_lambda[l] * jax.vmap(lambda x: self._cover(x, tobs))(X)
-        return jnp.where(jnp.isfinite(ll), ll, -jnp.inf)
-
-    def _one(self, x, tobs, l):
-        """The log-likelihood of one particle, as differentiated: the flesh points projected as world points
-        (``by_runs=False``), and the coverage term on the segment poses of the image cues when both use the same
-        body model (one forward kinematics, and one reverse pass through it)."""
-        if self.lik is None:
-            return -self.coverage_lambda[l] * self._cover(x, tobs)
-        lik = self.lik
-        pose = lik.pose_stage(x)
-        e = lik.energies_from_pose(pose, tobs.image, lik.prepare(tobs.image), by_runs=False)
-        ll = -jnp.sum(lik.layer_lambda(l) * e)
-        if self.coverage_lambda is not None:
-            if lik.model is self.model:
-                im = tobs.image
-                prims = flesh.world_primitives(self.model, pose["R"], pose["t"])
-                cover = jnp.sum(
-                    primitives_energy(prims, self.rig, im.silhouette, im.silhouette_w, self.d_max)
-                )
-            else:
-                cover = self._cover(x, tobs)
-            ll = ll - self.coverage_lambda[l] * cover
-        return ll
+        return self.lik.batch(X, tobs.image, self._layer(layer))
 
     def batch_value_and_grad(self, X, tobs, layer):
-        l = self._layer(layer)
-        return lk.finite_value_and_grad(*jax.vmap(jax.value_and_grad(lambda x: self._one(x, tobs, l)))(X))
+        return self.lik.batch_value_and_grad(X, tobs.image, self._layer(layer))
 
 
 class _Same:
@@ -170,37 +124,26 @@ _LIK_GEOMETRY = ("model", "rig", "surface", "references")
 
 def _flatten_observation_loglik(f: ObservationLoglik):
     lik = f.lik
-    params = None if lik is None else tuple(getattr(lik, n) for n in _LIK_PARAMS)
-    geometry = None if lik is None else _Same(*(getattr(lik, n) for n in _LIK_GEOMETRY))
-    config = None if lik is None else (lik.cues, lik.contour_points, lik.chunk_size)
-    if f.params_data:
-        children, constants = (params, f.coverage_lambda), None
-    else:
-        # each array held by identity (a new tuple of the same arrays is the same structure)
-        children, constants = (), _Same(*(params or ()), f.coverage_lambda)
-    aux = (geometry, config, _Same(f.d_max, f.model, f.rig), f.num_layers, constants)
-    return children, aux
+    params = tuple(getattr(lik, n) for n in _LIK_PARAMS)
+    geometry = _Same(*(getattr(lik, n) for n in _LIK_GEOMETRY))
+    config = (lik.cues, lik.contour_points, lik.chunk_size)
+    # without params_data each array is held by identity (a new tuple of the same arrays is the same structure)
+    children, constants = ((params,), None) if f.params_data else ((), _Same(*params))
+    return children, (geometry, config, f.num_layers, constants)
 
 
 def _unflatten_observation_loglik(aux, children) -> ObservationLoglik:
-    geometry, config, coverage, num_layers, constants = aux
-    if constants is None:
-        params, coverage_lambda = children
-    else:
-        *held, coverage_lambda = constants.values
-        params = tuple(held) if geometry is not None else None
-    lik = None
-    if geometry is not None:
-        cues, contour_points, chunk_size = config
-        lik = lk.Likelihood(
-            **dict(zip(_LIK_GEOMETRY, geometry.values, strict=True)),
-            **dict(zip(_LIK_PARAMS, params, strict=True)),
-            cues=cues,
-            contour_points=contour_points,
-            chunk_size=chunk_size,
-        )
-    d_max, model, rig = coverage.values
-    return ObservationLoglik(lik, coverage_lambda, d_max, model, rig, num_layers, constants is None)
+    geometry, config, num_layers, constants = aux
+    params = children[0] if constants is None else tuple(constants.values)
+    cues, contour_points, chunk_size = config
+    lik = lk.Likelihood(
+        **dict(zip(_LIK_GEOMETRY, geometry.values, strict=True)),
+        **dict(zip(_LIK_PARAMS, params, strict=True)),
+        cues=cues,
+        contour_points=contour_points,
+        chunk_size=chunk_size,
+    )
+    return ObservationLoglik(lik, num_layers, constants is None)
 
 
 jax.tree_util.register_pytree_node(
@@ -316,7 +259,7 @@ class TrackSetup:
 
     # -- likelihood ---------------------------------------------------------------------------------------------
 
-    def _build_likelihood(self) -> lk.Likelihood | None:
+    def _build_likelihood(self) -> lk.Likelihood:
         o = self.o
         names = [n for n, _ in self.cues]
         preset = o.filter if o.filter in ("fbapf", "fbapf2", "fbapf3", "m-apf") else "apf"
@@ -331,10 +274,8 @@ class TrackSetup:
                     + ", ".join(n for n, d in DIFFERENTIABLE.items() if d != "no")
                     + ")"
                 )
-        cue_objs, cols = [], []
-        for c, (n, w) in enumerate(self.cues):
-            if n == "coverage":  # composed by observation_loglik
-                continue
+        cue_objs = []
+        for n, w in self.cues:
             params = {}
             if gradient and DIFFERENTIABLE[n] in ("bilinear", "soft"):
                 params = {"bilinear": True, **({"soft": True} if DIFFERENTIABLE[n] == "soft" else {})}
@@ -342,29 +283,15 @@ class TrackSetup:
                 pairs = tuple((j, k) for j, k in init_mod.KEYPOINT_OF.items() if j in self.model.joint_names)
                 params = {**params, "pairs": pairs}
             cue_objs.append(lk.Cue(n, w, params))
-            cols.append(c)
-        cov = [(c, w) for c, (n, w) in enumerate(self.cues) if n == "coverage"]
-        self.coverage_lambda = jnp.asarray(table[:, cov[0][0]] * cov[0][1], jnp.float32) if cov else None
-        rig = self.features.rig
-        self.d_max = d_max_of(rig)
-        self._rig = rig.to_jax(jnp.float32)
-        if not cue_objs:
-            return None
         return lk.Likelihood.create(
-            self.model, rig, cue_objs, num_layers=self.layers, schedule=table[:, cols]
+            self.model, self.features.rig, cue_objs, num_layers=self.layers, schedule=table
         )
 
     @property
     def loglik(self):
         """The filter's likelihood ``loglik(X, tobs, layer) -> (N,)`` (:func:`observation_loglik`)."""
         return observation_loglik(
-            self.likelihood,
-            self.coverage_lambda,
-            self.d_max,
-            self.layers,
-            self.model,
-            self._rig,
-            params_data=self.o.filter not in GRADIENT_FILTERS,
+            self.likelihood, self.layers, params_data=self.o.filter not in GRADIENT_FILTERS
         )
 
     def set_references(self, x0: np.ndarray, first: TrackObservation) -> None:
@@ -372,13 +299,13 @@ class TrackSetup:
         (:meth:`jaxmocap.likelihood.compose.Likelihood.with_references`); a resumed run recomputes them from the
         same frame and pose, so that it continues with the same likelihood."""
         lik = self.likelihood
-        if lik is not None and lik.needs_references:
+        if lik.needs_references:
             dt = self.model.offset.dtype
             self.likelihood = lik.with_references(jnp.asarray(x0, dt), first.image)
 
     @property
     def needs_references(self) -> bool:
-        return self.likelihood is not None and self.likelihood.needs_references
+        return self.likelihood.needs_references
 
     # -- filter -------------------------------------------------------------------------------------------------
 

@@ -6,9 +6,9 @@ frame goes through them:
 
 * **sources** — :mod:`jaxmocap.io.sources` (a sequence folder, synchronised videos + a calibration);
 * **features** — :mod:`jaxmocap.tracking.features` (the image maps and the silhouette samples of the coverage cue);
-* **likelihood** — :func:`jaxmocap.tracking.setup.observation_loglik`: a
-  :class:`jaxmocap.likelihood.compose.Likelihood` over the image cues and the silhouette ``coverage`` cue
-  (:mod:`jaxmocap.likelihood.coverage`), weighted by one λ_c(l) table;
+* **likelihood** — :func:`jaxmocap.tracking.setup.observation_loglik`: one
+  :class:`jaxmocap.likelihood.compose.Likelihood` over every cue, the silhouette ``coverage`` cue
+  (:mod:`jaxmocap.likelihood.coverage`) included, weighted by one λ_c(l) table;
 * **filter** — :mod:`jaxmocap.filters.factory` with the per-model defaults of :mod:`jaxmocap.tracking.options`;
 * **initialisation** — :mod:`jaxmocap.tracking.init`;
 * **loop and outputs** — :mod:`jaxmocap.tracking.loop` (track loss, re-initialisation, resume) and

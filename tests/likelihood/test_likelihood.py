@@ -188,3 +188,40 @@ def test_all_invalid_particles_give_minus_inf_not_nan(scene):
     X = jnp.full((4, model.num_dofs), jnp.nan)
     ll = jax.jit(lambda lik, X, obs: lik.batch(X, obs, 0))(lik, X, obs)
     assert not bool(jnp.any(jnp.isnan(ll)))
+
+
+def test_coverage_is_composed_as_a_term_after_the_table(scene):
+    """The registered ``coverage`` cue enters ``Likelihood.batch`` as ``−λ_cov(l) k_cov Σ_v E_v`` subtracted after
+    the λ table of the other cues: bit for bit a likelihood without it minus that term computed from
+    :func:`jaxmocap.likelihood.coverage.coverage_energy` (the order of float operations on which tracks depend), in
+    every layer (the table's particles in padded chunks); its λ may not differ between views."""
+    from jaxmocap.likelihood.coverage import coverage_energy, d_max_of
+
+    model, rig, x, obs = scene
+    names = ["foreground", "coverage", "edges"]
+    lam = L.schedule_preset("fbapf2", names, 3)  # coverage: max(1 − l/2, 0.25)
+    kw = dict(num_layers=3, surface_points=200, chunk_size=16)
+    full = L.Likelihood.create(
+        model, rig, [L.Cue("foreground"), L.Cue("coverage", 1.5), L.Cue("edges", 2.0)], schedule=lam, **kw
+    )
+    table = L.Likelihood.create(
+        model, rig, [L.Cue("foreground"), L.Cue("edges", 2.0)], schedule=lam[:, [0, 2]], **kw
+    )
+    d_max = d_max_of(rig)
+
+    def reference(X, obs, layer):
+        uv, w = full.prepare(obs)[1]  # the silhouette samples, from the foreground map
+        cover = jax.vmap(lambda s: jnp.sum(coverage_energy(model, full.rig, s, uv, w, d_max)))(X)
+        ll = table.batch(X, obs, layer) - jnp.asarray(lam[:, 1] * np.float32(1.5))[layer] * cover
+        return jnp.where(jnp.isfinite(ll), ll, -jnp.inf)
+
+    X = x + 0.05 * jax.random.normal(jax.random.key(3), (50, model.num_dofs))
+    batch, reference = jax.jit(full.batch), jax.jit(reference)
+    for layer in range(3):
+        got = np.asarray(batch(X, obs, layer))
+        np.testing.assert_array_equal(got, np.asarray(reference(X, obs, layer)))
+    assert np.all(np.isfinite(got))
+    per_view = np.repeat(lam[:, :, None], 2, axis=2)
+    per_view[0, 1, 1] = 0.5
+    with pytest.raises(ValueError, match="coverage.*same for every view"):
+        L.Likelihood.create(model, rig, [L.Cue(n) for n in names], num_layers=3, schedule=per_view)
