@@ -10,22 +10,25 @@ Subcommands:
 * ``jaxmocap sweep SEQ ... --filters F,G --seeds A:B --out results.csv`` — sequences × filters × seeds, the
   seeds in one compiled call spread over the available devices, into one table (:mod:`jaxmocap.tracking.sweep`).
 
-Bad input prints one line naming the file (and line) and exits with status 2, never a traceback.
+Bad input prints one line naming the file (and line) and exits with status 2, never a traceback. Ctrl-C prints one
+line and exits with status 130, SIGTERM with 143 (a tracking run first writes what it has tracked:
+:mod:`jaxmocap.tracking.interrupts`).
 """
 
 from __future__ import annotations
 
 import argparse
 import pathlib
+import signal
 import sys
-
-import numpy as np
 
 from jaxmocap import __version__, choices
 from jaxmocap.errors import MocapInputError
 
 
 def _calib_show(args) -> int:
+    import numpy as np
+
     from jaxmocap.geometry import camera
     from jaxmocap.io import calibration
 
@@ -117,8 +120,10 @@ def _print_summary(summary: dict, out) -> None:
     fps = s.get("frames_per_s")
     first = s.get("first_frame_s")
     line = f"tracked {s['frames_tracked']} of {s['frames_requested']} frames ({s['frames_skipped']} skipped) in {s['wall_s']:.1f} s"
-    if fps:
+    if fps and first is not None:
         line += f": {fps:.2f} frames/s after a first frame (with compilation) of {first:.1f} s"
+    elif fps:
+        line += f" ({fps:.2f} frames/s over the frames tracked before the resume)"
     print(line)
     cues = _cues_text(s["cues"])
     print(
@@ -130,6 +135,29 @@ def _print_summary(summary: dict, out) -> None:
     files = ["poses.npz", "poses.csv", "diagnostics.json", "track.bvh"]
     files += [pathlib.Path(p).name for p in s.get("overlays", [])]
     print(f"wrote {', '.join(files)} to {out}")
+
+
+def _stopped(run, out, signum) -> int:
+    """One line for a run ended by Ctrl-C (``signum`` SIGINT) or SIGTERM; the exit status."""
+    from jaxmocap.tracking import interrupts
+
+    why = "terminated (SIGTERM)" if signum == signal.SIGTERM else "interrupted"
+    s = getattr(run, "summary", None)
+    if s is None:
+        print(f"jaxmocap: {why}", file=sys.stderr)
+    else:
+        again = (
+            " (--resume continues)"
+            if run.setup.resumable and s["frames_tracked"] < s["frames_requested"]
+            else ""
+        )
+        print(
+            f"jaxmocap: {why}; {s['frames_tracked']} of {s['frames_requested']} frames tracked, written to {out}{again}",
+            file=sys.stderr,
+        )
+    return interrupts.exit_status(
+        interrupts.Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+    )
 
 
 def _track_options(args):
@@ -194,8 +222,10 @@ def _silence_opencv() -> None:
 
 
 def _track(args) -> int:
-    _silence_opencv()
+    from jaxmocap.tracking import interrupts
 
+    _silence_opencv()
+    run = None
     try:
         options = _track_options(args)
         source = _open_source(args)
@@ -204,17 +234,17 @@ def _track(args) -> int:
             summary = run.run()
         finally:
             source.close()
-    except KeyboardInterrupt:
-        print(
-            f"\njaxmocap: interrupted; the frames tracked so far are in {args.out} (--resume continues)",
-            file=sys.stderr,
+    except (KeyboardInterrupt, interrupts.Terminated) as e:
+        return _stopped(
+            run, args.out, signal.SIGTERM if isinstance(e, interrupts.Terminated) else signal.SIGINT
         )
-        return 130
     except MocapInputError:
         raise
     except ValueError as e:  # a bad option value
         print(f"jaxmocap: error: {e}", file=sys.stderr)
         return 2
+    if interrupts.received() is not None:  # a signal whose exception library code swallowed
+        return _stopped(run, args.out, interrupts.received())
     if not args.quiet:
         _print_summary(summary, args.out)
     return 0
@@ -263,6 +293,7 @@ def _demo(args) -> int:
     import time
 
     import cv2
+    import numpy as np
 
     from jaxmocap.eval import metrics, viz
     from jaxmocap.filters.factory import particles_text
@@ -425,8 +456,11 @@ def _add_tracking_commands(sub) -> None:
     tr = sub.add_parser(
         "track",
         help="track a person in a sequence folder or synchronised videos",
-        description="Track a sequence folder (synthesis format) or synchronised videos with their calibration; "
-        "writes poses.npz, poses.csv, diagnostics.json and track.bvh to --out after every frame.",
+        description="Track a sequence folder (synthesis format) or synchronised videos with their calibration "
+        "into --out: poses.csv, poses.journal and diagnostics.jsonl get every frame as it is tracked; poses.npz and "
+        "diagnostics.json are rewritten every few seconds; track.bvh (and the overlays) are written at the end, "
+        "and poses.npz, diagnostics.json and track.bvh on every way out (Ctrl-C, SIGTERM, an error). One run at a "
+        "time writes to a folder (run.lock); --resume continues a run that was stopped or killed.",
     )
     tr.add_argument(
         "input", nargs="?", help="sequence folder or PARSEC bodytrack sequence folder (or use --videos)"
@@ -454,7 +488,7 @@ def _add_tracking_commands(sub) -> None:
     tr.add_argument(
         "--cues", help="comma-separated cues with optional weights, e.g. foreground,edge_distance:2,coverage"
     )
-    tr.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    tr.add_argument("--seed", type=int, default=0, help="random seed, 0 to 4294967295 (default 0)")
     tr.add_argument("--frames", help="frame range A:B (default: all)")
     tr.add_argument(
         "--init",
@@ -575,6 +609,21 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    try:
+        from jaxmocap.tracking import interrupts
+    except KeyboardInterrupt:
+        print("jaxmocap: interrupted", file=sys.stderr)
+        return 130
+    with interrupts.handling():
+        try:
+            return _main(argv)
+        except (KeyboardInterrupt, interrupts.Terminated) as e:  # before or after a run (importing, parsing)
+            why = "terminated (SIGTERM)" if isinstance(e, interrupts.Terminated) else "interrupted"
+            print(f"jaxmocap: {why}", file=sys.stderr)
+            return interrupts.exit_status(e)
+
+
+def _main(argv) -> int:
     args = build_parser().parse_args(argv)
     import jaxmocap.parsec  # noqa: F401  (the PARSEC wing registers the parsec31 body and the .cal camera reader)
     from jaxmocap import compilation_cache
