@@ -235,6 +235,7 @@ def _track(args) -> int:
         finally:
             source.close()
     except (KeyboardInterrupt, interrupts.Terminated) as e:
+        interrupts.consume()
         return _stopped(
             run, args.out, signal.SIGTERM if isinstance(e, interrupts.Terminated) else signal.SIGINT
         )
@@ -243,8 +244,8 @@ def _track(args) -> int:
     except ValueError as e:  # a bad option value
         print(f"jaxmocap: error: {e}", file=sys.stderr)
         return 2
-    if interrupts.received() is not None:  # a signal whose exception library code swallowed
-        return _stopped(run, args.out, interrupts.received())
+    if interrupts.received() is not None:  # a signal after the run's last check (its outputs are complete)
+        return _stopped(run, args.out, interrupts.consume())
     if not args.quiet:
         _print_summary(summary, args.out)
     return 0
@@ -618,6 +619,7 @@ def main(argv=None) -> int:
         try:
             return _main(argv)
         except (KeyboardInterrupt, interrupts.Terminated) as e:  # before or after a run (importing, parsing)
+            interrupts.consume()
             why = "terminated (SIGTERM)" if isinstance(e, interrupts.Terminated) else "interrupted"
             print(f"jaxmocap: {why}", file=sys.stderr)
             return interrupts.exit_status(e)

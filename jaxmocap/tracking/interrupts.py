@@ -6,18 +6,21 @@ a :func:`deferred` block (the writes of one frame's outputs, the flush of a run'
 signal is recorded and raised when the outermost block ends. A frame is therefore written whole or not at all, and
 the exit path that flushes the outputs is not cut short by a second Ctrl-C.
 
-The first signal is also remembered (:func:`received`): an exception raised by a handler can be swallowed by
-library code that catches it (a finaliser, a callback), so the frame loop checks :func:`check` at every frame and
-the command line reports the signal even when no exception reached it.
+The first signal is also remembered (:func:`received`) until its exception is handled (:func:`consume`). Python
+swallows an exception raised in a garbage-collector callback or a finaliser (printing "Exception ignored in …": JAX
+runs a callback at every collection), so there the handler raises nothing; the frame loop calls :func:`check` at
+every frame and before it writes anything, and the command line reports a signal even when no exception reached
+it.
 """
 
 from __future__ import annotations
 
 import contextlib
+import gc
 import signal
 import threading
 
-__all__ = ["Terminated", "check", "deferred", "exit_status", "handling", "received", "reset"]
+__all__ = ["Terminated", "check", "consume", "deferred", "exit_status", "handling", "received"]
 
 
 class Terminated(BaseException):
@@ -31,14 +34,26 @@ def _exception(signum: int) -> BaseException:
     return KeyboardInterrupt() if signum == signal.SIGINT else Terminated()
 
 
+def _swallowing(frame) -> bool:
+    """Whether an exception raised in ``frame`` would be swallowed: inside a garbage-collector callback or a
+    finaliser (``__del__``)."""
+    callbacks = {getattr(cb, "__code__", None) for cb in gc.callbacks}
+    while frame is not None:
+        if frame.f_code in callbacks or frame.f_code.co_name == "__del__":
+            return True
+        frame = frame.f_back
+    return False
+
+
 def _handler(signum, frame):
-    del frame
     if _state["received"] is None:
         _state["received"] = signum
     if _state["depth"] > 0:
         if _state["pending"] is None:
             _state["pending"] = signum
         return
+    if _swallowing(frame):
+        return  # check() raises it where it is not lost
     raise _exception(signum)
 
 
@@ -80,19 +95,22 @@ def deferred():
 
 
 def received() -> int | None:
-    """The first signal received since :func:`reset` (``signal.SIGINT`` / ``signal.SIGTERM``), or None."""
+    """The first signal received and not yet handled (``signal.SIGINT`` / ``signal.SIGTERM``), or None."""
     return _state["received"]
 
 
 def check() -> None:
-    """Raise the exception of a signal received earlier whose own exception was swallowed on its way."""
+    """Raise the exception of a signal received earlier and not yet handled (its own exception was not raised,
+    or was swallowed on its way)."""
     if _state["received"] is not None and _state["depth"] == 0:
         raise _exception(_state["received"])
 
 
-def reset() -> None:
-    """Forget the signals received (a new run starts)."""
+def consume() -> int | None:
+    """Mark the signal received as handled (its exception has reached the code that ends the run); returns it."""
+    signum = _state["received"]
     _state.update(pending=None, received=None)
+    return signum
 
 
 def exit_status(exc: BaseException) -> int:

@@ -137,9 +137,14 @@ class TrackingLoop:
     def _make_filter(self, x0: np.ndarray):
         self.filter = self.setup.make_filter(x0)
 
+        joints_of = getattr(self.setup, "estimate_joints", None)
+
         def step(filt, key, state, tobs):
+            """The filter step, and the joints of its estimate when the setup computes them on the device
+            (``estimate_joints``: no second dispatch per frame for the outputs)."""
             self.trace_count += 1
-            return filt.step(key, state, tobs)
+            new, info = filt.step(key, state, tobs)
+            return new, info, (None if joints_of is None else joints_of(info.estimate))
 
         # the filter (a pytree: its arrays, schedule values and likelihood leaves are data) is an argument, not a
         # constant of the program: a filter that differs only in data reuses the compiled step
@@ -249,6 +254,7 @@ class TrackingLoop:
             start, x0, state, loss = self._resume(ck)
             p.update(start=start, x0=x0, state=state, loss=loss, skipped=[], how=None)
             p["pending"] = self._prefetch(start)
+        interrupts.check()  # a signal whose exception was swallowed: stop before writing anything
         run_folder.start_out(self.out, ck is None, description)
         return p
 
@@ -260,21 +266,25 @@ class TrackingLoop:
         diagnostics with the summary so far) and re-raise; ``self.summary`` holds that summary."""
         self.summary = None
         with interrupts.handling():
-            interrupts.reset()
-            lock = run_folder.RunLock(self.out)
-            if lock.stale and not self.quiet:
-                warn(
-                    f"took over the lock of a run that ended without releasing it (pid {lock.stale.get('pid')})"
-                )
             try:
-                prepared = self._prepare()
-            except BaseException:
-                lock.release(remove_created_folder=True)
+                interrupts.check()
+                lock = run_folder.RunLock(self.out)
+                if lock.stale and not self.quiet:
+                    warn(
+                        f"took over the lock of a run that ended without releasing it (pid {lock.stale.get('pid')})"
+                    )
+                try:
+                    prepared = self._prepare()
+                except BaseException:
+                    lock.release(remove_created_folder=True)
+                    raise
+                try:
+                    return self._run(prepared)
+                finally:
+                    lock.release()
+            except (KeyboardInterrupt, interrupts.Terminated):
+                interrupts.consume()  # handed on to the caller
                 raise
-            try:
-                return self._run(prepared)
-            finally:
-                lock.release()
 
     def _run(self, p: dict) -> dict:
         setup, o = self.setup, self.o
@@ -310,8 +320,8 @@ class TrackingLoop:
         ck = run_folder.Checkpoints(self.out, o.fsync, model.num_dofs, p["x0"], self._ref_frame)
         writer = run_folder.BackgroundWriter()
 
-        def write_frame(t, x, record, after):  # in the writer's thread, in frame order
-            self._write_frame(pose_writer, diag, t, x, record)
+        def write_frame(t, x, joints, record, after):  # in the writer's thread, in frame order
+            self._write_frame(pose_writer, diag, t, x, joints, record)
             if after is not None:
                 ck.update(*after, pose_writer.num_frames)
 
@@ -347,10 +357,10 @@ class TrackingLoop:
                     state = state._replace(particles=state.particles + jnp.asarray(v, dt))
                 if not self._compiled:  # a resumed run compiles at its first readable frame
                     self._compile(t, state, tobs)
-                state, info = self._step(self.filter, self._key(t), state, tobs)
+                state, info, joints = self._step(self.filter, self._key(t), state, tobs)
                 # prepare the next frame on the host while the step runs
                 pending = self._prefetch(i + 1)
-                info = jax.device_get(info)
+                info, joints = jax.device_get((info, joints))
                 est = np.asarray(info.estimate, np.float64)
                 q = float(-np.asarray(info.layers.loglik_max).reshape(-1)[-1])
                 recovered = bool(np.asarray(info.recovered))
@@ -387,7 +397,7 @@ class TrackingLoop:
                     layers=layer_records(info.layers),
                 )
                 after = (t, state, loss.snapshot(), dict(stats)) if setup.resumable else None
-                writer.submit(functools.partial(write_frame, t, x, record, after))
+                writer.submit(functools.partial(write_frame, t, x, joints, record, after))
                 if stats["first_frame_s"] is None:
                     stats["first_frame_s"] = time.monotonic() - t_frame + (self.compile_s or 0.0)
                 progress.update(i + 1, "lost" if lost else "")
@@ -421,11 +431,13 @@ class TrackingLoop:
         self.summary = summary
         return summary
 
-    def _write_frame(self, pose_writer, diag, t: int, x: np.ndarray, record: dict) -> None:
-        """The outputs of one tracked frame ``t`` (state ``x``): appended to the pose files and the diagnostics
-        journal. Runs in the output thread (:class:`run_folder.BackgroundWriter`), in frame order, while the next
-        frame is tracked."""
-        pose_writer.append(t, x, export.eval_joints_of(self.setup.model, self.setup.joints(x)))
+    def _write_frame(self, pose_writer, diag, t: int, x: np.ndarray, joints, record: dict) -> None:
+        """The outputs of one tracked frame ``t``: the written state ``x`` (``setup.output_state``) and its joints
+        ``(J, 3)`` (``model.joint_names`` order, metres; None: ``setup.joints(x)``) appended to the pose files, and
+        the diagnostics ``record``. Runs in the output thread (:class:`run_folder.BackgroundWriter`), in frame
+        order, while the next frame is tracked."""
+        joints = self.setup.joints(x) if joints is None else np.asarray(joints, np.float64)
+        pose_writer.append(t, x, export.eval_joints_of(self.setup.model, joints))
         diag.append(record)
 
     def _write_outputs(self, pose_writer, diag, stats, ending, error: BaseException | None = None) -> dict:
