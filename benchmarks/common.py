@@ -81,6 +81,21 @@ def stamp() -> str:
     return time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
 
 
+def machine_line() -> str:
+    """``"<CPU model>, <n> cores, load average <1 min>"`` (the machine is shared: the load says how much)."""
+    import os
+    import platform
+
+    model = platform.machine()
+    try:
+        lines = pathlib.Path("/proc/cpuinfo").read_text().splitlines()
+        model = next(x.split(":", 1)[1].strip() for x in lines if x.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    return f"{model}, {os.cpu_count()} cores, load average {load:.1f}"
+
+
 def regenerate_line(command: str) -> str:
     """The first line of a Markdown results file: the command that regenerates it, as an HTML comment."""
     return f"<!-- Regenerate: {command} -->\n"

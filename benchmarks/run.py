@@ -238,12 +238,26 @@ SCRIPTS: dict[str, Script] = {
     "profile_likelihood": Script(
         "Where the compiled likelihood spends its time", "perf/profile_likelihood.py"
     ),
+    "run_rate": Script(
+        "Whole-run frames/s of a 3000-frame track against its step rate (the cost of the outputs)",
+        "perf/run_rate.py",
+        "--frames 3000 --size 160x120 --particles 100 --layers 3 --repeats 2",
+        writes=("run_rate.md",),
+        slow=True,
+    ),
     # experiments/: accuracy tables over seeds, tracking experiments
     "iros": Script(
         "IROS 2007 synthetic experiment",
         "experiments/iros_synthetic.py",
         writes=("iros_synthetic.md",),
         fn=_iros,
+    ),
+    "determinism": Script(
+        "One seed tracked twice over 1500 frames in one process: identical poses",
+        "experiments/determinism.py",
+        "--frames 1500 --size 160x120",
+        writes=("determinism.md",),
+        slow=True,
     ),
     "foreground": Script(
         "Foreground IoU",

@@ -178,3 +178,31 @@ def make_sequences(work: pathlib.Path, frames: str, size: str, log=print, max_cl
         log(f"synthesised {name}: {time.monotonic() - t0:.0f} s")
         seqs.append((name, d))
     return seqs
+
+
+class PingPong:
+    """A frame source of ``num_frames`` frames that plays a sequence folder's frames forwards, then backwards, and so
+    on (``0 … T−1, T−2 … 1, 0 …``): a long input with continuous motion, from a short synthetic sequence. Frame ``t``
+    is frame ``bounce(t)`` of ``source``, ground truth included."""
+
+    def __init__(self, source, num_frames: int):
+        self.s = source
+        for k in ("rig", "fps", "view_names", "has_masks", "has_depth", "has_keypoints", "body_path"):
+            setattr(self, k, getattr(source, k))
+        self.num_frames = int(num_frames)
+        self.index = np.asarray([self.bounce(t) for t in range(self.num_frames)])
+        gt = source.groundtruth
+        self.groundtruth = None if gt is None else np.asarray(gt)[self.index]
+        self.description = {**source.description, "ping_pong_frames": self.num_frames}
+
+    def bounce(self, t: int) -> int:
+        T = self.s.num_frames
+        period = 2 * (T - 1)
+        k = t % period
+        return k if k < T else period - k
+
+    def read(self, t: int, masks: bool = True, depth: bool = True):
+        return self.s.read(int(self.index[t]), masks, depth)
+
+    def close(self) -> None:
+        self.s.close()

@@ -12,16 +12,17 @@ Subcommands:
 * ``jaxmocap sweep SEQ ... --filters F,G --seeds A:B --out results.csv`` — sequences × filters × seeds, the
   seeds in one compiled call spread over the available devices, into one table (:mod:`jaxmocap.tracking.sweep`).
 
-Bad input prints one line naming the file (and line) and exits with status 2, never a traceback.
+Bad input prints one line naming the file (and line) and exits with status 2, never a traceback. Ctrl-C prints one
+line and exits with status 130, SIGTERM with 143 (a tracking run first writes what it has tracked:
+:mod:`jaxmocap.tracking.interrupts`).
 """
 
 from __future__ import annotations
 
 import argparse
 import pathlib
+import signal
 import sys
-
-import numpy as np
 
 from jaxmocap import __version__, choices
 from jaxmocap.errors import MocapInputError
@@ -29,6 +30,8 @@ from jaxmocap.tracking.smoothing import DEFAULT_CUTOFF_HZ
 
 
 def _calib_show(args) -> int:
+    import numpy as np
+
     from jaxmocap.geometry import camera
     from jaxmocap.io import calibration
 
@@ -147,8 +150,10 @@ def _print_summary(summary: dict, out) -> None:
     fps = s.get("frames_per_s")
     first = s.get("first_frame_s")
     line = f"tracked {s['frames_tracked']} of {s['frames_requested']} frames ({s['frames_skipped']} skipped) in {s['wall_s']:.1f} s"
-    if fps:
+    if fps and first is not None:
         line += f": {fps:.2f} frames/s after a first frame (with compilation) of {first:.1f} s"
+    elif fps:
+        line += f" ({fps:.2f} frames/s over the frames tracked before the resume)"
     print(line)
     cues = _cues_text(s["cues"])
     print(
@@ -174,6 +179,29 @@ def _print_summary(summary: dict, out) -> None:
 
 #: ``jaxmocap track`` arguments that are inputs rather than options (see :data:`jaxmocap.tracking.options.INPUT_KEYS`)
 _INPUTS = ("input", "videos", "calibration", "keypoints", "depth")
+
+
+def _stopped(run, out, signum) -> int:
+    """One line for a run ended by Ctrl-C (``signum`` SIGINT) or SIGTERM; the exit status."""
+    from jaxmocap.tracking import interrupts
+
+    why = "terminated (SIGTERM)" if signum == signal.SIGTERM else "interrupted"
+    s = getattr(run, "summary", None)
+    if s is None:
+        print(f"jaxmocap: {why}", file=sys.stderr)
+    else:
+        again = (
+            " (--resume continues)"
+            if run.setup.resumable and s["frames_tracked"] < s["frames_requested"]
+            else ""
+        )
+        print(
+            f"jaxmocap: {why}; {s['frames_tracked']} of {s['frames_requested']} frames tracked, written to {out}{again}",
+            file=sys.stderr,
+        )
+    return interrupts.exit_status(
+        interrupts.Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+    )
 
 
 def _track_values(args) -> dict:
@@ -239,9 +267,10 @@ def _track(args) -> int:
     import dataclasses
 
     from jaxmocap.api import run_options, write_config
+    from jaxmocap.tracking import interrupts
 
     _silence_opencv()
-    out, quiet = args.out, bool(args.quiet)
+    run, out, quiet = None, None, False
     try:
         values = _track_values(args)
         out, quiet = values["out"], bool(values.get("quiet", False))
@@ -265,17 +294,16 @@ def _track(args) -> int:
                     )
         finally:
             source.close()
-    except KeyboardInterrupt:
-        print(
-            f"\njaxmocap: interrupted; the frames tracked so far are in {out} (--resume continues)",
-            file=sys.stderr,
-        )
-        return 130
+    except (KeyboardInterrupt, interrupts.Terminated) as e:
+        interrupts.consume()
+        return _stopped(run, out, signal.SIGTERM if isinstance(e, interrupts.Terminated) else signal.SIGINT)
     except MocapInputError:
         raise
     except ValueError as e:  # a bad option value
         print(f"jaxmocap: error: {e}", file=sys.stderr)
         return 2
+    if interrupts.received() is not None:  # a signal after the run's last check (its outputs are complete)
+        return _stopped(run, out, interrupts.consume())
     if not quiet:
         _print_summary(summary, out)
     return 0
@@ -345,6 +373,7 @@ def _demo(args) -> int:
     import time
 
     import cv2
+    import numpy as np
 
     from jaxmocap.eval import metrics, viz
     from jaxmocap.filters.factory import particles_text
@@ -508,10 +537,12 @@ def _add_tracking_commands(sub) -> None:
     tr = sub.add_parser(
         "track",
         help="track a person in a sequence folder or synchronised videos",
-        description="Track a sequence folder (synthesis format) or synchronised videos with their calibration; "
-        "writes poses.npz, poses.csv and diagnostics.json to --out after every frame, and at the end the exported "
-        "track (smoothed, gaps filled): poses_smoothed.npz, track.bvh, poses.trc (OpenSim / Pose2Sim), poses.c3d "
-        "and plots/.",
+        description="Track a sequence folder (synthesis format) or synchronised videos with their calibration "
+        "into --out: poses.csv, poses.journal and diagnostics.jsonl get every frame as it is tracked; poses.npz and "
+        "diagnostics.json are rewritten every few seconds; at the end the exported track (smoothed, gaps filled): "
+        "poses_smoothed.npz, track.bvh, poses.trc (OpenSim / Pose2Sim), poses.c3d and plots/ (and the overlays), "
+        "written with poses.npz and diagnostics.json on every way out (Ctrl-C, SIGTERM, an error). One run at a "
+        "time writes to a folder (run.lock); --resume continues a run that was stopped or killed.",
     )
     tr.add_argument(
         "input",
@@ -566,7 +597,7 @@ def _add_tracking_commands(sub) -> None:
     tr.add_argument(
         "--cues", help="comma-separated cues with optional weights, e.g. foreground,edge_distance:2,coverage"
     )
-    tr.add_argument("--seed", type=int, help="random seed (default 0)")
+    tr.add_argument("--seed", type=int, help="random seed, 0 to 4294967295 (default 0)")
     tr.add_argument("--frames", help="frame range A:B (default: all, or a Pose2Sim project's frame_range)")
     tr.add_argument(
         "--init",
@@ -717,6 +748,22 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    try:
+        from jaxmocap.tracking import interrupts
+    except KeyboardInterrupt:
+        print("jaxmocap: interrupted", file=sys.stderr)
+        return 130
+    with interrupts.handling():
+        try:
+            return _main(argv)
+        except (KeyboardInterrupt, interrupts.Terminated) as e:  # before or after a run (importing, parsing)
+            interrupts.consume()
+            why = "terminated (SIGTERM)" if isinstance(e, interrupts.Terminated) else "interrupted"
+            print(f"jaxmocap: {why}", file=sys.stderr)
+            return interrupts.exit_status(e)
+
+
+def _main(argv) -> int:
     args = build_parser().parse_args(argv)
     import jaxmocap.parsec  # noqa: F401  (the PARSEC wing registers the parsec31 body and the .cal camera reader)
     from jaxmocap import compilation_cache

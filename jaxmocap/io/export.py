@@ -2,19 +2,26 @@
 
 **Crash safety** (:class:`PoseWriter`, :class:`DiagnosticsWriter`). After every frame:
 
-* ``poses.npz`` is **rewritten atomically**: the arrays of every finished frame go to a temporary file in the same
-  folder, which then replaces the old file with ``os.replace`` (atomic on POSIX and Windows). A process killed at
-  any moment therefore leaves either the previous or the new complete file, never a torn one. The cost is
-  ``O(T)`` per frame (≈ 0.6 kB per frame for ``full25``), negligible next to tracking for sequences of thousands
-  of frames. The file is flushed but not ``fsync``-ed by default (``fsync=True`` also survives power loss).
+* ``poses.journal`` gets the frame appended and flushed: one little-endian float64 record
+  ``[frame, state (D), joints (15 × 3)]`` after a header (a magic line and a JSON line with ``dof_names``,
+  ``model``, ``fps``). It is the run's record of every frame: a process killed during a write leaves a torn last
+  record, which readers leave out (:func:`read_pose_journal`).
 * ``poses.csv`` gets one line appended and flushed (one ``write`` call per line).
-* ``diagnostics.jsonl`` gets one JSON line appended and flushed; ``diagnostics.json`` (the same records as one
-  document) is rewritten atomically at most once per ``json_interval`` seconds and when the writer closes.
+* ``diagnostics.jsonl`` gets one JSON line appended and flushed.
+
+``poses.npz`` and ``diagnostics.json`` (the same records as whole documents) are **rewritten atomically** — to a
+temporary file in the same folder, then moved over the old one with ``os.replace``, so that a process killed at
+any moment leaves the previous or the new complete file — at most once per ``2 s`` and never more often than 100
+times the time a rewrite takes (:class:`Throttle`: rewriting costs at most 1 % of a run however long it is), and
+on every way out of a run (:meth:`PoseWriter.flush`, :meth:`DiagnosticsWriter.close`). Files are flushed but not
+``fsync``-ed by default (``fsync=True`` also survives power loss). :func:`load_poses` of a run's folder reads the
+journal when it holds more frames than ``poses.npz`` (a killed run), and :func:`resume_rows` checks every pose file
+a resumed run continues from.
 
 ``poses.npz`` holds ``joints (T, 15, 3)`` metres named by ``joint_names`` (:data:`jaxmocap.geometry.body.EVAL_JOINTS`;
 NaN for joints the model lacks), ``state (T, D)`` named by ``dof_names``, ``frame_index (T,)`` (frame numbers of
-the input), ``time (T,)`` seconds, ``fps`` and ``model``. Reopening a folder with ``resume=True`` keeps the first
-``keep`` frames (the ones a resume checkpoint covers) and rewrites the CSV and the journal to match.
+the input), ``time (T,)`` seconds, ``fps`` and ``model``. Reopening a folder with ``keep`` keeps the first
+``keep`` frames (the ones a resume checkpoint covers) and rewrites the CSV and the journals to match.
 
 **BVH**: :func:`save_model_bvh` (``track.bvh``), :func:`model_bvh` and :func:`bvh_eval_joints` are those of
 :mod:`jaxmocap.io.body_bvh` (the layout Blender and the common BVH loaders read).
@@ -45,9 +52,11 @@ __all__ = [
     "POSES_CSV",
     "DIAGNOSTICS_JSON",
     "DIAGNOSTICS_JOURNAL",
+    "POSES_JOURNAL",
     "TRACK_BVH",
     "DiagnosticsWriter",
     "PoseWriter",
+    "Throttle",
     "atomic_write_bytes",
     "atomic_write_npz",
     "atomic_write_text",
@@ -55,11 +64,14 @@ __all__ = [
     "eval_joints_of",
     "load_poses",
     "model_bvh",
+    "read_pose_journal",
+    "resume_rows",
     "save_model_bvh",
 ]
 
 POSES_NPZ = "poses.npz"
 POSES_CSV = "poses.csv"
+POSES_JOURNAL = "poses.journal"
 DIAGNOSTICS_JSON = "diagnostics.json"
 DIAGNOSTICS_JOURNAL = "diagnostics.jsonl"
 TRACK_BVH = "track.bvh"
@@ -135,15 +147,168 @@ def _fmt(v: float) -> str:
     return "nan" if not math.isfinite(v) else f"{v:.9g}"
 
 
+class Throttle:
+    """When to rewrite a whole file that grows with the run (``poses.npz``, ``diagnostics.json``): :meth:`due` once
+    ``interval`` seconds have passed since the last rewrite **and** ``ratio`` times the time that rewrite took, so
+    that rewriting costs at most ``1 / ratio`` of the run however long it gets. ``interval=0``: every time."""
+
+    def __init__(self, interval: float, ratio: float = 100.0):
+        self.interval, self.ratio = float(interval), float(ratio)
+        self.last, self.cost = -math.inf, 0.0
+
+    def due(self) -> bool:
+        if self.interval <= 0:
+            return True
+        return time.monotonic() - self.last >= max(self.interval, self.ratio * self.cost)
+
+    @contextlib.contextmanager
+    def timing(self):
+        t0 = time.monotonic()
+        yield
+        self.last = time.monotonic()
+        self.cost = self.last - t0
+
+
+_JOURNAL_MAGIC = b"JAXMOCAP POSES JOURNAL 1\n"
+
+
+def _journal_header(dof_names: Sequence[str], model: str, fps: float) -> bytes:
+    head = {
+        "dof_names": list(dof_names),
+        "model": str(model),
+        "fps": float(fps),
+        "joints": len(body_mod.EVAL_JOINTS),
+    }
+    return _JOURNAL_MAGIC + json.dumps(head, sort_keys=True).encode("utf-8") + b"\n"
+
+
+def read_pose_journal(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """The arrays of a ``poses.journal`` (the ones :class:`PoseWriter` gives ``poses.npz``); a torn last record
+    (a process killed during its write) is left out. Raises :class:`MocapInputError`."""
+    p = pathlib.Path(path)
+    try:
+        data = p.read_bytes()
+    except OSError as e:
+        raise MocapInputError(p, f"cannot read: {e}") from None
+    end = data.find(b"\n", len(_JOURNAL_MAGIC))
+    if not data.startswith(_JOURNAL_MAGIC) or end < 0:
+        raise MocapInputError(p, "not a jaxmocap pose journal")
+    try:
+        head = json.loads(data[len(_JOURNAL_MAGIC) : end])
+        dof_names, model, fps = [str(n) for n in head["dof_names"]], str(head["model"]), float(head["fps"])
+    except (ValueError, KeyError, TypeError):
+        raise MocapInputError(p, "not a jaxmocap pose journal (bad header)") from None
+    J, D = len(body_mod.EVAL_JOINTS), len(dof_names)
+    width = 1 + D + 3 * J
+    body = data[end + 1 :]
+    rows = np.frombuffer(body, "<f8", count=(len(body) // (8 * width)) * width).reshape(-1, width)
+    frames = rows[:, 0].astype(np.int64)
+    return _pose_arrays(frames, rows[:, 1 : 1 + D], rows[:, 1 + D :].reshape(-1, J, 3), dof_names, model, fps)
+
+
+def _pose_arrays(frames, states, joints, dof_names, model, fps) -> dict[str, np.ndarray]:
+    frames = np.asarray(frames, np.int64)
+    return {
+        "joints": np.asarray(joints, np.float64),
+        "joint_names": np.asarray(body_mod.EVAL_JOINTS),
+        "state": np.asarray(states, np.float64),
+        "dof_names": np.asarray(dof_names),
+        "frame_index": frames,
+        "time": frames / float(fps),
+        "fps": np.asarray(float(fps)),
+        "model": np.asarray(str(model)),
+    }
+
+
+def resume_rows(
+    out: str | os.PathLike, dof_names: Sequence[str], model: str, rows: int
+) -> dict[str, np.ndarray]:
+    """The first ``rows`` tracked frames of the run in ``out``, after checking every pose output a resumed run
+    continues from (nothing is written); raises :class:`MocapInputError` naming the file that fails.
+
+    The rows come from ``poses.journal`` (every frame, appended), or from ``poses.npz`` when that holds them all
+    (a run of a version without the journal). ``poses.npz``, where present, must be this model's and agree with
+    the journal; ``poses.csv``, where present, must have this run's header and frame numbers (a file of the same
+    name that another program wrote is never replaced). Missing ``poses.npz`` / ``poses.csv`` are rewritten from
+    the rows."""
+    out = pathlib.Path(out)
+    dof_names = [str(n) for n in dof_names]
+    found = {}
+    for name in (POSES_JOURNAL, POSES_NPZ):
+        p = out / name
+        if not p.exists():
+            continue
+        a = read_pose_journal(p) if name == POSES_JOURNAL else load_poses(p)
+        if [str(n) for n in a.get("dof_names", ())] != dof_names or str(a.get("model", "")) != str(model):
+            raise MocapInputError(
+                p, f"holds poses of another model than this run's ({model}, {len(dof_names)} DOFs)"
+            )
+        found[name] = a
+    have = {name: len(a["frame_index"]) for name, a in found.items()}
+    src = next((n for n in (POSES_JOURNAL, POSES_NPZ) if have.get(n, -1) >= rows), None)
+    if src is None:
+        what = (
+            ", ".join(f"{n} {k}" for n, k in have.items())
+            or f"neither {POSES_JOURNAL} nor {POSES_NPZ} exists"
+        )
+        raise MocapInputError(
+            out,
+            f"the checkpoint covers {rows} tracked frames but the pose files hold fewer ({what}): cannot resume",
+        )
+    a = {
+        k: (v[:rows] if k in ("joints", "state", "frame_index", "time") else v) for k, v in found[src].items()
+    }
+    for name, b in found.items():
+        n = min(have[name], rows)
+        same = np.array_equal(b["frame_index"][:n], a["frame_index"][:n]) and np.array_equal(
+            b["state"][:n], a["state"][:n], equal_nan=True
+        )
+        if not same:
+            raise MocapInputError(out / name, f"disagrees with {src}: not this run's poses, cannot resume")
+    _check_csv(out / POSES_CSV, _csv_header(dof_names), a["frame_index"])
+    return a
+
+
+def _check_csv(path: pathlib.Path, header: str, frames: np.ndarray) -> None:
+    """A resumed run's ``poses.csv``: absent, or this run's header and (a prefix of) its frame numbers."""
+    if not path.exists():
+        return
+    try:
+        with open(path, encoding="utf-8", newline="") as f:
+            if f.readline() != header:
+                raise MocapInputError(
+                    path, "was not written by this run (another header): move it away to resume"
+                )
+            got = []
+            for line in f:
+                if not line.endswith("\n"):
+                    break  # a torn last line
+                got.append(line.split(",", 1)[0])
+    except (OSError, UnicodeDecodeError) as e:
+        raise MocapInputError(path, f"cannot read: {e}") from None
+    n = min(len(got), len(frames))
+    if got[:n] != [str(int(f)) for f in frames[:n]]:
+        raise MocapInputError(path, "its frame numbers disagree with the run's poses: move it away to resume")
+
+
+def _csv_header(dof_names: Sequence[str]) -> str:
+    cols = ["frame", "time_s", *dof_names]
+    cols += [f"{j}_{a}" for j in body_mod.EVAL_JOINTS for a in "xyz"]
+    return ",".join(cols) + "\n"
+
+
 class PoseWriter:
-    """Incremental ``poses.npz`` + ``poses.csv`` of a tracking run (see the module docstring).
+    """The incremental pose outputs of a tracking run (see the module docstring): ``poses.journal`` and
+    ``poses.csv`` appended every frame, ``poses.npz`` rewritten from time to time (:class:`Throttle`) and on
+    :meth:`flush` / :meth:`close`.
 
     Args:
       out: the output folder (created).
       dof_names: the model's state entries; model: its name; fps: frames per second of the input.
-      keep: with ``None`` start afresh (existing files are replaced); with an int, reopen the files of a previous
-        run and keep its first ``keep`` frames (a resume).
-      fsync: also ``fsync`` every rewrite.
+      keep: with ``None`` start afresh (existing files are replaced); with an int, continue the run in ``out``
+        from its first ``keep`` frames (a resume: :func:`resume_rows` checks its files first).
+      fsync: also ``fsync`` every write.
+      snapshot_interval: seconds between rewrites of ``poses.npz`` (at least; see :class:`Throttle`).
     """
 
     def __init__(
@@ -154,39 +319,57 @@ class PoseWriter:
         fps: float,
         keep: int | None = None,
         fsync: bool = False,
+        snapshot_interval: float = 2.0,
     ):
         self.out = pathlib.Path(out)
         self.out.mkdir(parents=True, exist_ok=True)
-        self.dof_names = tuple(dof_names)
+        self.dof_names = tuple(str(n) for n in dof_names)
         self.model = str(model)
         self.fps = float(fps)
         self.fsync = fsync
+        self._throttle = Throttle(snapshot_interval)
         D, J = len(self.dof_names), len(body_mod.EVAL_JOINTS)
-        self.frames: list[int] = []
-        self.states = np.zeros((0, D))
-        self.joints = np.zeros((0, J, 3))
-        if keep is not None and (self.out / POSES_NPZ).exists():
-            old = load_poses(self.out / POSES_NPZ)
-            if old["state"].shape[1] != D:
-                raise MocapInputError(
-                    self.out / POSES_NPZ, f"has {old['state'].shape[1]} DOFs, the model {D}"
-                )
-            keep = min(int(keep), len(old["frame_index"]))
-            self.frames = [int(f) for f in old["frame_index"][:keep]]
-            self.states = old["state"][:keep]
-            self.joints = old["joints"][:keep]
+        self._frames: list[int] = []
+        self._states: list[np.ndarray] = [np.zeros((0, D))]
+        self._joints: list[np.ndarray] = [np.zeros((0, J, 3))]
+        if keep is not None:
+            old = resume_rows(self.out, self.dof_names, self.model, int(keep))
+            self._frames = [int(f) for f in old["frame_index"]]
+            self._states, self._joints = [old["state"]], [old["joints"]]
+        head = _journal_header(self.dof_names, self.model, self.fps)
+        atomic_write_bytes(self.out / POSES_JOURNAL, head + self._records(0), fsync)
+        self._written = self.num_frames
         self._write_npz()
-        self._rewrite_csv()
+        atomic_write_text(self.out / POSES_CSV, _csv_header(self.dof_names) + self._rows_text(0), fsync)
+        self._journal = open(self.out / POSES_JOURNAL, "ab")  # noqa: SIM115
         self._csv = open(self.out / POSES_CSV, "a", encoding="utf-8", newline="\n")  # noqa: SIM115
 
     @property
     def num_frames(self) -> int:
-        return len(self.frames)
+        return len(self._frames)
 
-    def _header(self) -> str:
-        cols = ["frame", "time_s", *self.dof_names]
-        cols += [f"{j}_{a}" for j in body_mod.EVAL_JOINTS for a in "xyz"]
-        return ",".join(cols) + "\n"
+    @property
+    def frames(self) -> list[int]:
+        return self._frames
+
+    @property
+    def states(self) -> np.ndarray:
+        """``(T, D)``: every frame's state (one array; appending keeps a list of rows until it is asked for)."""
+        if len(self._states) > 1:
+            self._states = [np.concatenate(self._states)]
+        return self._states[0]
+
+    @property
+    def joints(self) -> np.ndarray:
+        """``(T, 15, 3)``: every frame's evaluation joints."""
+        if len(self._joints) > 1:
+            self._joints = [np.concatenate(self._joints)]
+        return self._joints[0]
+
+    def _records(self, start: int) -> bytes:
+        s, j, f = self.states[start:], self.joints[start:], np.asarray(self._frames[start:], np.float64)
+        rows = [f[:, None], s, j.reshape(len(f), 3 * len(body_mod.EVAL_JOINTS))]
+        return np.concatenate(rows, axis=1).astype("<f8").tobytes()
 
     def _row(self, frame: int, state: np.ndarray, joints: np.ndarray) -> str:
         vals = [str(int(frame)), _fmt(frame / self.fps)]
@@ -194,49 +377,56 @@ class PoseWriter:
         vals += [_fmt(float(v)) for v in np.asarray(joints).reshape(-1)]
         return ",".join(vals) + "\n"
 
-    def _rewrite_csv(self) -> None:
-        text = self._header() + "".join(
-            self._row(f, s, j) for f, s, j in zip(self.frames, self.states, self.joints, strict=True)
+    def _rows_text(self, start: int) -> str:
+        return "".join(
+            self._row(f, s, j)
+            for f, s, j in zip(self._frames[start:], self.states[start:], self.joints[start:], strict=True)
         )
-        atomic_write_text(self.out / POSES_CSV, text, self.fsync)
 
     def arrays(self) -> dict[str, np.ndarray]:
-        frames = np.asarray(self.frames, np.int64)
-        return {
-            "joints": self.joints,
-            "joint_names": np.asarray(body_mod.EVAL_JOINTS),
-            "state": self.states,
-            "dof_names": np.asarray(self.dof_names),
-            "frame_index": frames,
-            "time": frames / self.fps,
-            "fps": np.asarray(self.fps),
-            "model": np.asarray(self.model),
-        }
+        return _pose_arrays(self._frames, self.states, self.joints, self.dof_names, self.model, self.fps)
 
     def _write_npz(self) -> None:
-        atomic_write_npz(self.out / POSES_NPZ, self.arrays(), self.fsync)
+        with self._throttle.timing():
+            atomic_write_npz(self.out / POSES_NPZ, self.arrays(), self.fsync)
 
     def append(self, frame: int, state: np.ndarray, joints15: np.ndarray) -> None:
         """Add one frame: ``state (D,)``, ``joints15 (15, 3)`` metres (NaN for absent joints)."""
         state = np.asarray(state, np.float64).reshape(1, -1)
         joints15 = np.asarray(joints15, np.float64).reshape(1, len(body_mod.EVAL_JOINTS), 3)
-        self.frames.append(int(frame))
-        self.states = np.concatenate([self.states, state])
-        self.joints = np.concatenate([self.joints, joints15])
-        self._write_npz()
+        self._frames.append(int(frame))
+        self._states.append(state)
+        self._joints.append(joints15)
+        rec = np.concatenate([[float(frame)], state[0], joints15.reshape(-1)]).astype("<f8").tobytes()
+        self._journal.write(rec)
+        self._journal.flush()
+        if self.fsync:
+            os.fsync(self._journal.fileno())
         self._csv.write(self._row(frame, state[0], joints15[0]))
         self._csv.flush()
+        if self._throttle.due():
+            self._write_npz()
+
+    def flush(self) -> None:
+        """Rewrite ``poses.npz`` with every frame so far."""
+        self._write_npz()
 
     def close(self) -> None:
-        if not self._csv.closed:
-            self._csv.close()
+        """:meth:`flush` and close the appended files (again: nothing)."""
+        if self._csv.closed:
+            return
+        self.flush()
+        self._journal.close()
+        self._csv.close()
 
 
 def load_poses(path: str | os.PathLike) -> dict[str, np.ndarray]:
-    """The arrays of a ``poses.npz`` (or of the one in a folder), checked; raises :class:`MocapInputError`."""
+    """The arrays of a ``poses.npz`` (or of a run's folder: its ``poses.npz``, or its ``poses.journal`` when that
+    holds more frames, as after a killed run), checked; raises :class:`MocapInputError`."""
     p = pathlib.Path(path)
+    journal = None
     if p.is_dir():
-        p = p / POSES_NPZ
+        journal, p = p / POSES_JOURNAL, p / POSES_NPZ
     if not p.is_file():
         raise MocapInputError(p, "no such file")
     data = _read_npz(p)
@@ -248,14 +438,18 @@ def load_poses(path: str | os.PathLike) -> dict[str, np.ndarray]:
         raise MocapInputError(p, "arrays of inconsistent shapes")
     if data["state"].shape[0] != T:
         raise MocapInputError(p, "arrays of inconsistent lengths")
+    if journal is not None and journal.is_file():
+        more = read_pose_journal(journal)
+        if len(more["frame_index"]) > T and more["state"].shape[1] == data["state"].shape[1]:
+            return more
     return data
 
 
 class DiagnosticsWriter:
     """Per-frame diagnostics: ``diagnostics.jsonl`` (one line per frame, appended and flushed) and
     ``diagnostics.json`` (``{"run": …, "frames": [...], "summary": …}``, rewritten atomically at most every
-    ``json_interval`` seconds and on :meth:`close`). With ``keep`` (a resume) the journal's records of frames
-    ``< keep_until`` (frame numbers) are kept."""
+    ``json_interval`` seconds (:class:`Throttle`) and on :meth:`close`). With ``keep`` (a resume) the journal's
+    records of frames ``< keep_until`` (frame numbers) are kept."""
 
     def __init__(
         self,
@@ -268,8 +462,7 @@ class DiagnosticsWriter:
         self.out.mkdir(parents=True, exist_ok=True)
         self.run = dict(run)
         self.records: list[dict] = []
-        self.json_interval = json_interval
-        self._last_json = -math.inf
+        self._throttle = Throttle(json_interval)
         journal = self.out / DIAGNOSTICS_JOURNAL
         if keep_until is not None and journal.exists():
             for line in journal.read_text(encoding="utf-8").splitlines():
@@ -296,15 +489,15 @@ class DiagnosticsWriter:
         self.records.append(rec)
         self._journal.write(json.dumps(rec, sort_keys=True, allow_nan=False) + "\n")
         self._journal.flush()
-        if time.monotonic() - self._last_json >= self.json_interval:
+        if self._throttle.due():
             self.write_json()
 
     def write_json(self, summary: Mapping | None = None) -> None:
         doc = {"run": _jsonable(self.run), "frames": self.records}
         if summary is not None:
             doc["summary"] = _jsonable(summary)
-        atomic_write_text(self.out / DIAGNOSTICS_JSON, json.dumps(doc, indent=1, sort_keys=True) + "\n")
-        self._last_json = time.monotonic()
+        with self._throttle.timing():
+            atomic_write_text(self.out / DIAGNOSTICS_JSON, json.dumps(doc, indent=1, sort_keys=True) + "\n")
 
     def close(self, summary: Mapping | None = None) -> None:
         self.write_json(summary)

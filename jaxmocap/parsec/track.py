@@ -187,6 +187,10 @@ class ParsecSetup:
         x_m[3:6] /= parsec.MM_PER_M
         return x_m
 
+    def estimate_joints(self, est_mm: jnp.ndarray) -> jnp.ndarray:
+        """The joints (metres) of the estimate, traced into the filter step."""
+        return body_mod.joint_positions(self.model, parsec.to_metres(est_mm))
+
     def joints(self, x_m: np.ndarray) -> np.ndarray:
         return np.asarray(self._joints(jnp.asarray(x_m, jnp.float32)), np.float64)
 

@@ -185,10 +185,22 @@ def pose_from_file(model: body_mod.BodyModel, path: pathlib.Path, t0: int) -> np
         data = export._read_npz(path)
         if "state" not in data:
             raise MocapInputError(path, "no 'state' array")
-        st = np.asarray(data["state"], np.float64).reshape(-1, data["state"].shape[-1])
+        st = data["state"]
+        if st.dtype.kind not in "biuf" or st.ndim not in (1, 2) or st.size == 0 or st.shape[-1] != D:
+            raise MocapInputError(
+                path,
+                f"'state' is {st.dtype} {st.shape}: expected ({D},) or (T, {D}) numbers for the {model.name} model",
+            )
+        st = np.asarray(st, np.float64).reshape(-1, D)
         row = 0
-        if "frame_index" in data and t0 in set(np.asarray(data["frame_index"]).tolist()):
-            row = int(np.nonzero(np.asarray(data["frame_index"]) == t0)[0][0])
+        if "frame_index" in data:
+            fi = data["frame_index"]
+            if fi.dtype.kind not in "iu" or fi.shape != (st.shape[0],):
+                raise MocapInputError(
+                    path, f"'frame_index' is {fi.dtype} {fi.shape}: expected ({st.shape[0]},) integers"
+                )
+            hits = np.nonzero(fi == t0)[0]
+            row = int(hits[0]) if hits.size else 0
         x = st[row]
     elif path.suffix.lower() == ".npy":
         try:

@@ -6,7 +6,25 @@ constant-velocity prediction of the root translation, the filter step (jitted **
 argument, so that its data — diffusion std, schedule values, the likelihood's cue weights and λ — are not constants
 of the program: ``trace_count`` stays 1),
 track-loss detection and re-initialisation, and incremental outputs (:mod:`jaxmocap.io.export`) with a resume
-checkpoint (``resume.npz``) after each frame.
+checkpoint (``resume.npz``, :class:`jaxmocap.tracking.run_folder.Checkpoints`: at most once a second, and on every
+way out; a run killed by SIGKILL is resumed from its last checkpoint and tracks the frames after it again, to the
+same bits).
+
+**Before the first frame** (:meth:`TrackingLoop._prepare`) the run takes the output folder's lock
+(:class:`jaxmocap.tracking.run_folder.RunLock`), checks the folder (:func:`~jaxmocap.tracking.run_folder.check_out`)
+and the input, checks that the particle set fits in memory, and compiles the filter step, refusing a program that
+would not fit (:mod:`jaxmocap.tracking.resources`); only then does it write to the folder, so that a run refused
+there leaves no half-made folder.
+
+**Every way out** — the end, Ctrl-C, SIGTERM (:mod:`jaxmocap.tracking.interrupts`), an error such as an
+undecodable frame with ``--on-bad-frame stop`` — goes through :meth:`TrackingLoop._write_outputs`: ``poses.npz``,
+``track.bvh`` and ``diagnostics.json`` with the summary hold every frame tracked. A frame's outputs
+(:meth:`TrackingLoop._write_frame`, then the checkpoint) are written in a thread of their own
+(:class:`jaxmocap.tracking.run_folder.BackgroundWriter`) while the next frame is tracked; every way out waits for
+them, and an error in reading the next frame (prepared while the step runs) is raised only once the current frame
+is queued.
+``run.json`` records how the run ended (``status``): ``complete`` after the overlays
+(:meth:`TrackingLoop.write_overlays`), else ``interrupted`` or ``stopped``.
 
 **Compiling ahead.** A fresh run compiles the filter step in a second thread while the first frame is initialised
 (the pose fit of :mod:`jaxmocap.tracking.init` compiles and runs programs of its own): XLA compiles independent
@@ -25,9 +43,12 @@ detection (``setup.reinit_mean``) with ``reinit_widen`` times the diffusion spre
 
 from __future__ import annotations
 
+import copy
+import functools
 import math
 import os
 import pathlib
+import shutil
 import threading
 import time
 
@@ -40,11 +61,14 @@ from jaxmocap.filters.base import State
 from jaxmocap.filters.factory import particles_text
 from jaxmocap.io import export
 from jaxmocap.io.sources import BadFrame
-from jaxmocap.tracking import outputs, run_folder
+from jaxmocap.tracking import interrupts, outputs, resources, run_folder
 from jaxmocap.tracking.init import root_translation_dofs
-from jaxmocap.tracking.progress import CompileNotice, Progress
+from jaxmocap.tracking.progress import CompileNotice, Progress, warn
 
-__all__ = ["LossTracker", "TrackingLoop", "layer_records"]
+__all__ = ["MAX_SEED", "LossTracker", "TrackingLoop", "layer_records"]
+
+#: the largest seed: JAX's keys take 32-bit seeds (without 64-bit mode a larger one would wrap onto a smaller one)
+MAX_SEED = 2**32 - 1
 
 
 class LossTracker:
@@ -64,6 +88,12 @@ class LossTracker:
         s.q_ref = float(ck["q_ref"])
         s.q_hist = [float(v) for v in np.asarray(ck["q_hist"]).reshape(-1)]
         s.lost_run = int(ck["lost_run"])
+        return s
+
+    def snapshot(self) -> LossTracker:
+        """A copy that later frames do not change (for a checkpoint written later)."""
+        s = copy.copy(self)
+        s.q_hist, s.hist = list(self.q_hist), list(self.hist)
         return s
 
     def bad_quality(self, q: float) -> bool:
@@ -92,22 +122,20 @@ class TrackingLoop:
     compile_ahead = True
 
     def __init__(self, setup, out: str | os.PathLike, quiet: bool = False):
+        seed = setup.o.seed
+        if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or not 0 <= int(seed) <= MAX_SEED:
+            raise ValueError(f"--seed must be an integer from 0 to {MAX_SEED}, got {seed}")
         self.setup = setup
         self.o, self.source = setup.o, setup.source
         self.out = pathlib.Path(out)
         self.quiet = quiet
         self.trace_count = 0
         self.filter = None
+        self.summary = None
+        self.compile_s = None
+        self._compiled = False
         self._ahead = None
         self.compiled_ahead = False
-
-        def step(filt, key, state, tobs):
-            self.trace_count += 1
-            return filt.step(key, state, tobs)
-
-        # the filter (a pytree: its arrays, schedule values and likelihood leaves are data) is an argument, not a
-        # constant of the program: a filter that differs only in data reuses the compiled step
-        self._step = jax.jit(step)
 
     def __getattr__(self, name):
         if name == "setup":
@@ -121,6 +149,19 @@ class TrackingLoop:
 
     def _make_filter(self, x0: np.ndarray):
         self.filter = self.setup.make_filter(x0)
+
+        joints_of = getattr(self.setup, "estimate_joints", None)
+
+        def step(filt, key, state, tobs):
+            """The filter step, and the joints of its estimate when the setup computes them on the device
+            (``estimate_joints``: no second dispatch per frame for the outputs)."""
+            self.trace_count += 1
+            new, info = filt.step(key, state, tobs)
+            return new, info, (None if joints_of is None else joints_of(info.estimate))
+
+        # the filter (a pytree: its arrays, schedule values and likelihood leaves are data) is an argument, not a
+        # constant of the program: a filter that differs only in data reuses the compiled step
+        self._jitted = self._step = jax.jit(step)
 
     def _what(self) -> str:
         o, setup = self.o, self.setup
@@ -140,9 +181,9 @@ class TrackingLoop:
         def work():
             try:
                 with CompileNotice(self._what(), enabled=not self.quiet):
-                    self._step.lower(args[0], key, args[1], tobs).compile()
+                    self._jitted.lower(args[0], key, args[1], tobs).compile()
                 thread.done = True
-            except Exception:  # the first call compiles again, and raises what is wrong
+            except Exception:  # the step compiles again in :meth:`_compile`, and raises what is wrong
                 pass
 
         thread = threading.Thread(target=work, name="jaxmocap-compile", daemon=True)
@@ -150,22 +191,13 @@ class TrackingLoop:
         thread.start()
         self._ahead = thread
 
-    def _join_ahead(self) -> None:
-        """Wait for a compilation ahead that no step has waited for (a run that failed before its first step)."""
+    def _join_ahead(self) -> bool:
+        """Wait for the compilation ahead, if one was started; whether it compiled the step."""
         ahead, self._ahead = self._ahead, None
-        if ahead is not None:
-            ahead.join()
-
-    def _first_call(self, filt, key, state, tobs):
-        """The first call of the step: after the compilation ahead, else in a :class:`CompileNotice`."""
-        ahead, self._ahead = self._ahead, None
-        if ahead is not None:
-            ahead.join()
-            if ahead.done:
-                self.compiled_ahead = True
-                return self._step(filt, key, state, tobs)
-        with CompileNotice(self._what(), enabled=not self.quiet):
-            return self._step(filt, key, state, tobs)
+        if ahead is None:
+            return False
+        ahead.join()
+        return ahead.done
 
     def _key(self, t: int, purpose: int = 0):
         k = jax.random.fold_in(jax.random.key(int(self.o.seed)), int(t))
@@ -221,14 +253,96 @@ class TrackingLoop:
         state = State(*(jnp.asarray(ck[k], dt) for k in ("particles", "log_weights", "estimate")))
         return start, x0, state, LossTracker.from_checkpoint(self.o, ck)
 
-    def run(self) -> dict:
-        """Track every frame; returns the summary (also in ``diagnostics.json``)."""
+    def _prefetch(self, i: int):
+        """The observation tuple of ``frames[i]`` (None past the end), or the exception that reading it raised:
+        raised by the loop once the frame before it is written (so ``--on-bad-frame stop`` keeps that frame)."""
+        frames = self.setup.frames
+        if i >= len(frames):
+            return None
         try:
-            return self._run()
-        finally:
-            self._join_ahead()
+            return self._observe(frames[i])
+        except Exception as e:  # noqa: BLE001 (re-raised in order, after the current frame's outputs)
+            return _Failed(e)
 
-    def _run(self) -> dict:
+    def _compile(self, t: int, state, tobs) -> None:
+        """Compile the filter step for the shapes of ``state`` and ``tobs`` (saying so), then refuse it when its
+        program would not fit in memory (:func:`jaxmocap.tracking.resources.check_program`). The frames then
+        reuse the compiled program (``trace_count`` stays 1)."""
+        setup = self.setup
+        what = self._what()
+        t0 = time.monotonic()
+        # compiled ahead: the same program, found in JAX's cache (no second notice)
+        self.compiled_ahead = self._join_ahead()
+        with CompileNotice(what, enabled=not self.quiet and not self.compiled_ahead):
+            compiled = self._jitted.lower(self.filter, self._key(t), state, tobs).compile()
+        self._compiled = True
+        self.compile_s = time.monotonic() - t0
+        n = setup.num_particles
+        resources.check_program(
+            compiled, f"--particles {particles_text(n)}: {what}", n if isinstance(n, int) else max(n)
+        )
+
+    def _prepare(self) -> dict:
+        """Everything before the first frame's outputs: the checks of the folder and the input, the initial state
+        (or the checkpoint's) and, for a fresh run, the compiled step; then :func:`run_folder.start_out`. Nothing
+        is written to the folder until every check has passed."""
+        setup, o = self.setup, self.o
+        description = setup.description()
+        ck = run_folder.check_out(self.out, description, o.resume, o.overwrite, setup.resumable)
+        frames, n = setup.frames, setup.num_particles
+        what = f"--particles {particles_text(n)}"
+        resources.check_particle_set(n if isinstance(n, int) else max(n), setup.model.num_dofs, what)
+        p = {"ck": ck, "description": description}
+        if ck is None:
+            # a fresh run: everything that can fail on the input fails before any output is written
+            start, pending, skipped, x0, spread, how = self._first_frame()
+            self._ref_frame = frames[start]
+            setup.set_references(x0, pending[0])
+            self._make_filter(x0)
+            t0 = frames[start]
+            state = setup.start(self.filter, self._key(t0, 1), x0, spread, pending[0])
+            self._compile(t0, state, pending[0])
+            p.update(start=start, pending=pending, skipped=skipped, x0=x0, how=how, state=state)
+            p["loss"] = LossTracker(o, x0)
+        else:
+            start, x0, state, loss = self._resume(ck)
+            p.update(start=start, x0=x0, state=state, loss=loss, skipped=[], how=None)
+            p["pending"] = self._prefetch(start)
+        interrupts.check()  # a signal whose exception was swallowed: stop before writing anything
+        run_folder.start_out(self.out, ck is None, description)
+        return p
+
+    def run(self) -> dict:
+        """Track every frame; returns the summary (also in ``diagnostics.json``).
+
+        Holds the output folder's lock (:class:`run_folder.RunLock`) for the run. Ctrl-C and SIGTERM
+        (:mod:`jaxmocap.tracking.interrupts`) and errors end it through :meth:`_write_outputs` (poses, BVH,
+        diagnostics with the summary so far) and re-raise; ``self.summary`` holds that summary."""
+        self.summary = None
+        with interrupts.handling():
+            try:
+                interrupts.check()
+                lock = run_folder.RunLock(self.out)
+                if lock.stale and not self.quiet:
+                    warn(
+                        f"took over the lock of a run that ended without releasing it (pid {lock.stale.get('pid')})"
+                    )
+                try:
+                    prepared = self._prepare()
+                except BaseException:
+                    lock.release(remove_created_folder=True)
+                    raise
+                try:
+                    return self._run(prepared)
+                finally:
+                    lock.release()
+            except (KeyboardInterrupt, interrupts.Terminated):
+                interrupts.consume()  # handed on to the caller
+                raise
+            finally:
+                self._join_ahead()  # a run that failed before its step compiled
+
+    def _run(self, p: dict) -> dict:
         setup, o = self.setup, self.o
         model = setup.model
         dt = model.offset.dtype
@@ -237,51 +351,51 @@ class TrackingLoop:
         frames = setup.frames
         stats = {"reinitialisations": 0, "lost_frames": 0, "skipped": 0, "first_frame_s": None}
         t_begin = time.monotonic()
-        description = setup.description()
-        ck = run_folder.check_out(self.out, description, o.resume, o.overwrite, setup.resumable)
-        if (
-            ck is None
-        ):  # a fresh run: everything that can fail on the input fails before any output is written
-            start, pending, skipped, x0, spread, how = self._first_frame()
-            self._ref_frame = frames[start]
-            setup.set_references(x0, pending[0])
-            self._make_filter(x0)
-            t0 = frames[start]
-            state = setup.start(self.filter, self._key(t0, 1), x0, spread, pending[0])
-            loss = LossTracker(o, x0)
-        else:
-            start, x0, state, loss = self._resume(ck)
-            skipped, how = [], None
+        old, start, pending = p["ck"], p["start"], p["pending"]
+        state, loss, how = p["state"], p["loss"], p["how"]
+        if old is not None:
             for k in ("reinitialisations", "lost_frames", "skipped"):
-                stats[k] = int(ck[k])
-            pending = self._observe(frames[start]) if start < len(frames) else None
-        run_folder.start_out(self.out, ck is None, description)
+                stats[k] = int(old[k])
         pose_writer = export.PoseWriter(
             self.out,
             model.dof_names,
             model.name,
             self.source.fps,
-            keep=None if ck is None else int(ck["rows"]),
+            keep=None if old is None else int(old["rows"]),
             fsync=o.fsync,
         )
         diag = export.DiagnosticsWriter(
-            self.out, description, keep_until=None if ck is None else frames[start - 1] + 1
+            self.out, p["description"], keep_until=None if old is None else frames[start - 1] + 1
         )
-        resumed_at = None if ck is None else (frames[start] if start < len(frames) else None)
-        for t, why in skipped:
+        resumed_at = None if old is None else (frames[start] if start < len(frames) else None)
+        for t, why in p["skipped"]:
             stats["skipped"] += 1
             diag.append({"frame": t, "skipped": True, "reason": why})
         progress = Progress(len(frames), enabled=not self.quiet)
-        interrupted = False
+        ending = {"wall": t_begin, "resumed_at": resumed_at}
+        ck = run_folder.Checkpoints(self.out, o.fsync, model.num_dofs, p["x0"], self._ref_frame)
+        writer = run_folder.BackgroundWriter()
+
+        def write_frame(t, x, joints, record, after):  # in the writer's thread, in frame order
+            self._write_frame(pose_writer, diag, t, x, joints, record)
+            if after is not None:
+                ck.update(*after, pose_writer.num_frames)
+
+        flushed = False
         try:
             for i in range(start, len(frames)):
+                interrupts.check()
+                if isinstance(pending, _Failed):  # the frame before it is written: now stop
+                    raise pending.error
                 t = frames[i]
                 t_frame = time.monotonic()
                 tobs, masks, fd, bad = pending
                 if tobs is None:  # an unreadable frame, skipped
                     stats["skipped"] += 1
-                    diag.append({"frame": t, "skipped": True, "reason": bad})
-                    pending = self._observe(frames[i + 1]) if i + 1 < len(frames) else None
+                    writer.submit(
+                        functools.partial(diag.append, {"frame": t, "skipped": True, "reason": bad})
+                    )
+                    pending = self._prefetch(i + 1)
                     progress.update(i + 1)
                     continue
                 record = {"frame": t, "time_s": t / self.source.fps}
@@ -297,13 +411,12 @@ class TrackingLoop:
                 if len(hist) == 2 and hist[0][0] == t - 2 and hist[1][0] == t - 1 and setup.velocity > 0:
                     v = np.where(trans, hist[1][1] - hist[0][1], 0.0) * setup.velocity
                     state = state._replace(particles=state.particles + jnp.asarray(v, dt))
-                if i == start:  # compiles the step, or waits for it: say so, and how long it took
-                    state, info = self._first_call(self.filter, self._key(t), state, tobs)
-                else:
-                    state, info = self._step(self.filter, self._key(t), state, tobs)
+                if not self._compiled:  # a resumed run compiles at its first readable frame
+                    self._compile(t, state, tobs)
+                state, info, joints = self._step(self.filter, self._key(t), state, tobs)
                 # prepare the next frame on the host while the step runs
-                pending = self._observe(frames[i + 1]) if i + 1 < len(frames) else None
-                info = jax.device_get(info)
+                pending = self._prefetch(i + 1)
+                info, joints = jax.device_get((info, joints))
                 est = np.asarray(info.estimate, np.float64)
                 q = float(-np.asarray(info.layers.loglik_max).reshape(-1)[-1])
                 recovered = bool(np.asarray(info.recovered))
@@ -329,7 +442,6 @@ class TrackingLoop:
                         loss.last_good = est if not bad_quality else loss.last_good
                         loss.hist = [*loss.hist, (t, est)][-2:]
                 x = setup.output_state(est)
-                pose_writer.append(t, x, export.eval_joints_of(model, setup.joints(x)))
                 record.update(
                     quality=q,
                     recovered=recovered,
@@ -340,51 +452,78 @@ class TrackingLoop:
                     seconds=time.monotonic() - t_frame,
                     layers=layer_records(info.layers),
                 )
-                diag.append(record)
-                if setup.resumable:
-                    run_folder.write_checkpoint(
-                        self.out, o.fsync, model.num_dofs, t, state, loss, stats, pose_writer.num_frames, x0,
-                        self._ref_frame,
-                    )  # fmt: skip
+                after = (t, state, loss.snapshot(), dict(stats)) if setup.resumable else None
+                writer.submit(functools.partial(write_frame, t, x, joints, record, after))
                 if stats["first_frame_s"] is None:
-                    stats["first_frame_s"] = time.monotonic() - t_frame
+                    stats["first_frame_s"] = time.monotonic() - t_frame + (self.compile_s or 0.0)
                 progress.update(i + 1, "lost" if lost else "")
-        except KeyboardInterrupt:
-            interrupted = True
+            interrupts.check()
+            with interrupts.deferred():
+                writer.drain()
+                ck.flush()
+                summary = self._write_outputs(pose_writer, diag, stats, ending)
+                flushed = True
+            if self.o.overlay and pose_writer.num_frames:
+                summary["overlays"] = [os.fspath(q) for q in self.write_overlays(pose_writer)]
+            with interrupts.deferred():
+                pose_writer.close()
+                diag.close(summary)
+                run_folder.set_status(self.out, "complete")
+        except BaseException as e:
             progress.end_line()
-        except BaseException:
-            progress.end_line()
-            pose_writer.close()
-            diag.close()
+            stopped = isinstance(e, KeyboardInterrupt | interrupts.Terminated)
+            with interrupts.deferred():
+                writer.close()  # the frames queued are written (a failed write's exception is ``e`` or after it)
+                if not flushed:
+                    ck.flush()
+                    summary = self._write_outputs(pose_writer, diag, stats, ending, e)
+                summary.update(interrupted=stopped, error=None if stopped else str(e))
+                pose_writer.close()
+                diag.close(summary)
+                run_folder.set_status(self.out, "interrupted" if stopped else "stopped")
+            self.summary = summary
             raise
-        pose_writer.close()
-        summary = self._finish(pose_writer, diag, stats, time.monotonic() - t_begin, interrupted, resumed_at)
-        if interrupted:
-            raise KeyboardInterrupt
+        writer.close()
+        self.summary = summary
         return summary
 
-    def _finish(self, pose_writer, diag, stats, wall, interrupted, resumed_at) -> dict:
+    def _write_frame(self, pose_writer, diag, t: int, x: np.ndarray, joints, record: dict) -> None:
+        """The outputs of one tracked frame ``t``: the written state ``x`` (``setup.output_state``) and its joints
+        ``(J, 3)`` (``model.joint_names`` order, metres; None: ``setup.joints(x)``) appended to the pose files, and
+        the diagnostics ``record``. Runs in the output thread (:class:`run_folder.BackgroundWriter`), in frame
+        order, while the next frame is tracked."""
+        joints = self.setup.joints(x) if joints is None else np.asarray(joints, np.float64)
+        pose_writer.append(t, x, export.eval_joints_of(self.setup.model, joints))
+        diag.append(record)
+
+    def _write_outputs(self, pose_writer, diag, stats, ending, error: BaseException | None = None) -> dict:
+        """The outputs made from every frame tracked so far, written on every way out of a run (the end, Ctrl-C,
+        SIGTERM, an error): ``poses.npz``, ``track.bvh``, ``diagnostics.json`` with the summary (returned)."""
         setup = self.setup
         model = setup.model
         n = pose_writer.num_frames
+        stopped = isinstance(error, KeyboardInterrupt | interrupts.Terminated)
         summary = {
             "frames_tracked": n,
             "frames_requested": len(setup.frames),
             "frames_skipped": stats["skipped"],
             "lost_frames": stats["lost_frames"],
             "reinitialisations": stats["reinitialisations"],
-            "wall_s": wall,
+            "wall_s": time.monotonic() - ending["wall"],
             "first_frame_s": stats["first_frame_s"],
             "frames_per_s": diag.frames_per_s(),
-            "interrupted": interrupted,
-            "resumed_at": resumed_at,
+            "interrupted": stopped,
+            "error": None if error is None or stopped else str(error),
+            "resumed_at": ending["resumed_at"],
             "compilations": self.trace_count,
+            "compile_s": self.compile_s,
             "model": model.name,
             "filter": self.o.filter,
             "particles": setup.num_particles,
             "layers": setup.layers,
             "cues": [list(c) for c in setup.cues],
         }
+        pose_writer.flush()
         groundtruth = getattr(self.source, "groundtruth", None)
         if n:  # the exported track: poses_smoothed.npz, track.bvh, poses.trc, poses.c3d, plots/
             summary.update(
@@ -401,13 +540,14 @@ class TrackingLoop:
                 summary["mean_error_mm"] = rep["overall_mean_mm"]
             except ValueError:  # nothing to compare (e.g. a diverged, non-finite track)
                 summary["mean_error_mm"] = None
-        diag.close(summary)
-        if self.o.overlay and n and not interrupted:
-            summary["overlays"] = [os.fspath(p) for p in self.write_overlays(pose_writer)]
+        diag.write_json(summary)
         return summary
 
     def write_overlays(self, pose_writer) -> list[pathlib.Path]:
-        """One H.264 MP4 per view of the tracked model drawn over the input (full size), and a montage PNG."""
+        """One H.264 MP4 per view of the tracked model drawn over the input (full size), and a montage PNG of six
+        frames. Both are written in :data:`run_folder.OVERLAY_TMP` and moved next to the other outputs once
+        complete: a run stopped while writing them (each writer is released on the way out) leaves no partial
+        video under the final name."""
         from jaxmocap.eval import viz
 
         rig = self.source.rig
@@ -416,17 +556,36 @@ class TrackingLoop:
         states = dict(zip(pose_writer.frames, pose_writer.states, strict=True))
         joints = dict(zip(pose_writer.frames, pose_writer.joints, strict=True))
         gt = self.source.groundtruth
-        with viz.OverlayVideo(self.out, rig.names, rig.image_size, self.source.fps, rj) as video:
-            for t in self.setup.frames:
-                if t not in states:
-                    continue
-                try:
-                    fd = self.source.read(t, masks=False)
-                except BadFrame:
-                    continue
-                truth = None if gt is None else gt[t]
-                video.write(viz.overlay_image(fd.images, model, rj, states[t], truth), joints[t], t)
-        return [p for p in (*video.paths, video.montage_path) if p.exists()]
+        tmp = self.out / run_folder.OVERLAY_TMP
+        shutil.rmtree(tmp, ignore_errors=True)
+        tmp.mkdir()
+        try:
+            with viz.OverlayVideo(tmp, rig.names, rig.image_size, self.source.fps, rj) as video:
+                for t in self.setup.frames:
+                    if t not in states:
+                        continue
+                    try:
+                        fd = self.source.read(t, masks=False)
+                    except BadFrame:
+                        continue
+                    truth = None if gt is None else gt[t]
+                    video.write(viz.overlay_image(fd.images, model, rj, states[t], truth), joints[t], t)
+            with interrupts.deferred():
+                paths = []
+                for q in (*video.paths, video.montage_path):
+                    if q.exists():
+                        os.replace(q, self.out / q.name)
+                        paths.append(self.out / q.name)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+        return paths
+
+
+class _Failed:
+    """A frame whose reading raised ``error`` (kept until the frame before it is written)."""
+
+    def __init__(self, error: BaseException):
+        self.error = error
 
 
 def layer_records(layers) -> list[dict]:

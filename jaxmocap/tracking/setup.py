@@ -11,7 +11,8 @@ initial pose is known, the filter (:func:`jaxmocap.filters.factory.make_filter`)
 The frame loop (:mod:`jaxmocap.tracking.loop`) reads these hooks of a setup: ``observe(t)``,
 ``initial_state(t, masks, fd)``, ``set_references(x0, obs)``, ``make_filter(x0)``, ``start(filter, key, x0,
 spread, obs)``, ``detection(fd, masks, last_good)``, ``reinit_mean(fd, masks, last_good)``, ``output_state(x)``,
-``joints(x)``, ``description()`` and the flags ``track_loss`` / ``resumable`` / ``velocity``.
+``joints(x)``, optionally ``estimate_joints(est)`` (traced into the step), ``description()`` and the flags
+``track_loss`` / ``resumable`` / ``velocity``.
 """
 
 from __future__ import annotations
@@ -378,6 +379,11 @@ class TrackSetup:
     def output_state(self, x: np.ndarray) -> np.ndarray:
         """The state written for the filter's estimate ``x`` (the same state)."""
         return x
+
+    def estimate_joints(self, est: jnp.ndarray) -> jnp.ndarray:
+        """``(J, 3)`` joints of the filter's estimate ``est (D,)`` (traceable: computed in the compiled step);
+        the same as :meth:`joints` of ``output_state(est)``."""
+        return init_mod.joint_positions(self.model, est)
 
     def joints(self, x: np.ndarray) -> np.ndarray:
         """``(J, 3)`` joints of the written state ``x``."""

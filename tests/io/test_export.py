@@ -8,6 +8,7 @@ import os
 import numpy as np
 import pytest
 
+from jaxmocap.errors import MocapInputError
 from jaxmocap.geometry import body
 from jaxmocap.io import export
 from jaxmocap.tracking.options import build_model
@@ -119,3 +120,48 @@ def test_load_poses_rejects_bad_files(tmp_path):
     export.atomic_write_npz(tmp_path / "poses.npz", {"joints": np.zeros((2, 15, 3))})
     with pytest.raises(MocapInputError, match="not a jaxmocap poses.npz"):
         export.load_poses(tmp_path / "poses.npz")
+
+
+def test_pose_journal_holds_every_frame_and_drops_a_torn_record(tmp_path):
+    """Between two rewrites of ``poses.npz`` the journal holds the frames (``load_poses`` of the folder reads it);
+    the half-written record of a killed process is left out; ``flush`` brings ``poses.npz`` up to date."""
+    w = export.PoseWriter(tmp_path, ("a", "b"), "test", fps=10.0, snapshot_interval=1e9)
+    rng = np.random.default_rng(1)
+    states, joints = rng.normal(size=(4, 2)), rng.normal(size=(4, 15, 3))
+    for k in range(4):
+        w.append(3 + k, states[k], joints[k])
+    snapshot = export.load_poses(tmp_path / "poses.npz")  # as the writer opened: no rewrite due since
+    assert len(snapshot["frame_index"]) == 0
+    p = export.load_poses(tmp_path)
+    np.testing.assert_array_equal(p["frame_index"], [3, 4, 5, 6])
+    np.testing.assert_array_equal(p["state"], states)
+    np.testing.assert_array_equal(p["joints"], joints)
+    assert list(p["dof_names"]) == ["a", "b"] and str(p["model"]) == "test" and float(p["fps"]) == 10.0
+    with open(tmp_path / "poses.journal", "ab") as f:
+        f.write(np.arange(7, dtype="<f8").tobytes())  # a torn fifth record
+    np.testing.assert_array_equal(
+        export.read_pose_journal(tmp_path / "poses.journal")["frame_index"], [3, 4, 5, 6]
+    )
+    w.flush()
+    np.testing.assert_array_equal(export.load_poses(tmp_path / "poses.npz")["state"], states)
+    w.close()
+    (tmp_path / "poses.journal").write_bytes(b"something else\n")
+    with pytest.raises(MocapInputError, match="not a jaxmocap pose journal"):
+        export.read_pose_journal(tmp_path / "poses.journal")
+
+
+def test_throttle_keeps_rewrites_to_a_hundredth_of_the_time(monkeypatch):
+    """A rewrite is due ``interval`` seconds after the last one and no sooner than 100 times its duration."""
+    clock = [100.0]
+    monkeypatch.setattr(export.time, "monotonic", lambda: clock[0])
+    th = export.Throttle(2.0)
+    assert th.due()
+    with th.timing():
+        clock[0] += 0.5  # a rewrite that takes 0.5 s
+    clock[0] += 2.0
+    assert not th.due()  # 2 s passed, but 100 x 0.5 s = 50 s have not
+    clock[0] += 47.9
+    assert not th.due()
+    clock[0] += 0.2
+    assert th.due()
+    assert export.Throttle(0.0).due()
