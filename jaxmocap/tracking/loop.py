@@ -137,19 +137,6 @@ class TrackingLoop:
         self._ahead = None
         self.compiled_ahead = False
 
-    def __getattr__(self, name):
-        if name == "setup":
-            raise AttributeError(name)
-        return getattr(self.setup, name)
-
-    # -- hooks --------------------------------------------------------------------------------------------------
-
-    def _observe(self, t: int):
-        return self.setup.observe(t)
-
-    def _make_filter(self, x0: np.ndarray):
-        self.filter = self.setup.make_filter(x0)
-
         joints_of = getattr(self.setup, "estimate_joints", None)
 
         def step(filt, key, state, tobs):
@@ -162,6 +149,19 @@ class TrackingLoop:
         # the filter (a pytree: its arrays, schedule values and likelihood leaves are data) is an argument, not a
         # constant of the program: a filter that differs only in data reuses the compiled step
         self._jitted = self._step = jax.jit(step)
+
+    def __getattr__(self, name):
+        if name == "setup":
+            raise AttributeError(name)
+        return getattr(self.setup, name)
+
+    # -- hooks --------------------------------------------------------------------------------------------------
+
+    def _observe(self, t: int):
+        return self.setup.observe(t)
+
+    def _make_filter(self, x0: np.ndarray):
+        self.filter = self.setup.make_filter(x0)
 
     def _what(self) -> str:
         o, setup = self.o, self.setup

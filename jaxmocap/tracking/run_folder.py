@@ -54,6 +54,8 @@ RESUME_NPZ = "resume.npz"
 LOCK = "run.lock"
 #: the folder the overlay videos are written into before they are moved next to the other outputs
 OVERLAY_TMP = ".overlays.tmp"
+#: the montage of the overlays (:class:`jaxmocap.eval.viz.OverlayVideo`)
+OVERLAY_MONTAGE = "overlay_montage.png"
 #: the outputs a run writes (a fresh run into a folder holding one of them needs --overwrite)
 OUTPUTS = (
     RUN_JSON,
@@ -64,7 +66,7 @@ OUTPUTS = (
     export.DIAGNOSTICS_JSON,
     export.DIAGNOSTICS_JOURNAL,
     *outputs.EXPORTS,
-    outputs.OVERLAY_MONTAGE,
+    OVERLAY_MONTAGE,
 )
 
 try:

@@ -133,7 +133,7 @@ def test_a_signal_during_a_run_is_one_line_and_flushes_the_outputs(
     """Ctrl-C (exit status 130) and SIGTERM (143) while frames are tracked: one line naming what was written,
     and every output — poses, BVH, diagnostics with the summary — holds the frames tracked."""
     opened = cli._open_source
-    monkeypatch.setattr(cli, "_open_source", lambda args: _SignalsAt(opened(args), 7, sig))
+    monkeypatch.setattr(cli, "_open_source", lambda *a: _SignalsAt(opened(*a), 7, sig))
     out = tmp_path / "run"
     code, err = _main(capsys, "track", sequence, "--out", out, "--quiet", *TRACK_OPTS, "--frames", "0:20")
     why = "terminated (SIGTERM)" if sig == signal.SIGTERM else "interrupted"
