@@ -457,18 +457,8 @@ def _sweep(args) -> int:
         import jax  # the multi-process runtime: every process runs this command with the same options
 
         jax.distributed.initialize(args.coordinator, args.num_processes, args.process_id)
-    over = dict(
-        sequences=args.sequences or None,
-        filters=args.filters,
-        seeds=args.seeds,
-        model=args.model,
-        particles=args.particles,
-        layers=args.layers,
-        cues=args.cues,
-        frames=args.frames,
-        devices=args.devices,
-        chunk=args.chunk,
-    )
+    keys = ("filters", "seeds", "model", "particles", "layers", "cues", "frames", "devices", "chunk")
+    over = {"sequences": args.sequences or None, **{k: getattr(args, k) for k in keys}}
     try:
         if args.spec is not None:
             spec = sweep.load_spec(args.spec, **over)
@@ -640,19 +630,11 @@ def _add_tracking_commands(sub) -> None:
         "--bvh-units", choices=("cm", "m"), default=None, help="length unit of track.bvh (default cm)"
     )
     for flag, kind, what in (
-        (
-            "--velocity",
-            float,
-            "damping of the constant-velocity prediction of the root (default 0.5; 0 = none)",
-        ),
+        ("--velocity", float, "damping of the root's constant-velocity prediction (default 0.5; 0 = none)"),
         ("--diffusion-scale", float, "factor on the per-DOF diffusion (default 1)"),
         ("--survival-target", float, "annealing survival rate alpha (default 0.5)"),
         ("--samples", int, "silhouette samples per view of the coverage cue (default 128)"),
-        (
-            "--loss-ratio",
-            float,
-            "track lost when the best energy exceeds this times its reference (default 2.5)",
-        ),
+        ("--loss-ratio", float, "lost when the best energy exceeds this times its reference (default 2.5)"),
         ("--loss-frames", int, "... for this many frames in a row (default 3)"),
         ("--loss-window", int, "frames after the initialisation that set the reference energy (default 5)"),
         ("--reinit-widen", float, "spread of a re-initialisation, times the diffusion (default 3)"),

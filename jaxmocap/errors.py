@@ -18,3 +18,17 @@ class MocapInputError(ValueError):
         if line is not None:
             where = f"{where}:{line}"
         super().__init__(f"{where}: {message}")
+
+
+def load_toml(path: str | os.PathLike, what: str) -> dict:
+    """The TOML document in ``path`` (``what`` it is, for the message); an unreadable file or invalid TOML is a
+    :class:`MocapInputError` naming the file."""
+    import tomllib
+
+    try:
+        with open(path, "rb") as f:
+            return tomllib.load(f)
+    except OSError as e:
+        raise MocapInputError(path, f"cannot read the {what}: {e.strerror or e}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise MocapInputError(path, f"not valid TOML: {e}") from None

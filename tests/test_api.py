@@ -81,7 +81,7 @@ def test_config_file_and_its_write_back(sequence, api_result, tmp_path):
         ("particles = 'many'\n", ["run.toml", "'particles' must be an integer or a list of integers"]),
         ("seed = 1.5\n", ["run.toml", "'seed' must be an integer"]),
         ("videos = 'a.mp4'\n", ["run.toml", "'videos' must be a list of paths"]),
-        ("particles = [\n", ["run.toml", "invalid TOML"]),
+        ("particles = [\n", ["run.toml", "not valid TOML"]),
     ],
 )
 def test_bad_configuration_is_one_line(text, needles, tmp_path, capsys):

@@ -32,7 +32,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-import tomllib
 from collections.abc import Callable, Mapping
 from importlib import resources
 from typing import NamedTuple
@@ -41,7 +40,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmocap.errors import MocapInputError
+from jaxmocap.errors import MocapInputError, load_toml
 from jaxmocap.geometry import kinematics
 
 #: The 15 evaluation joints of Li & Kulić, in the order every output of the project uses.
@@ -514,13 +513,7 @@ def build(
 
 def load_body_file(path: str | os.PathLike) -> tuple[str, dict[str, float]]:
     """Read a body file: returns ``(model name, dimensions)``. Raises :class:`MocapInputError` on bad content."""
-    try:
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
-    except OSError as e:
-        raise MocapInputError(path, f"cannot read body file: {e.strerror or e}") from None
-    except tomllib.TOMLDecodeError as e:
-        raise MocapInputError(path, f"not valid TOML: {e}") from None
+    data = load_toml(path, "body file")
     name = data.get("model")
     if not isinstance(name, str):
         raise MocapInputError(path, "body file needs a string 'model = \"...\"'")

@@ -321,59 +321,39 @@ def matrix_to_euler(R, order: str, xp=np):
 #: site) or ``("mid", a, b)`` (midpoint of joints ``a`` and ``b``).
 JointSpec = str | tuple[str, str] | tuple[str, str, str]
 
-CMU_ASF_EVAL: dict[str, JointSpec] = {
-    "root": "root",
-    "thorax": "lowerneck",
-    "head": ("end_mid", "head"),
-    "left_shoulder": "lhumerus",
-    "left_elbow": "lradius",
-    "left_wrist": "lhand",
-    "right_shoulder": "rhumerus",
-    "right_elbow": "rradius",
-    "right_wrist": "rhand",
-    "left_hip": "lfemur",
-    "left_knee": "ltibia",
-    "left_ankle": "lfoot",
-    "right_hip": "rfemur",
-    "right_knee": "rtibia",
-    "right_ankle": "rfoot",
-}
 
-CMU_BVH_3DSMAX_EVAL: dict[str, JointSpec] = {
-    "root": "Hips",
-    "thorax": "lowerneck",
-    "head": ("end_mid", "Head"),
-    "left_shoulder": "LeftShoulder",
-    "left_elbow": "LeftElbow",
-    "left_wrist": "LeftWrist",
-    "right_shoulder": "RightShoulder",
-    "right_elbow": "RightElbow",
-    "right_wrist": "RightWrist",
-    "left_hip": "LeftHip",
-    "left_knee": "LeftKnee",
-    "left_ankle": "LeftAnkle",
-    "right_hip": "RightHip",
-    "right_knee": "RightKnee",
-    "right_ankle": "RightAnkle",
-}
+def eval_naming(
+    axial: tuple[JointSpec, JointSpec, JointSpec], limbs: Mapping[str, str], sided: str
+) -> dict[str, JointSpec]:
+    """The evaluation-joint mapping of a skeleton that names its sides by a pattern: ``axial`` the specs of
+    ``root``, ``thorax`` and ``head``; ``limbs`` the file's name of each limb joint (``shoulder``, ``elbow``,
+    ``wrist``, ``hip``, ``knee``, ``ankle``) without its side; ``sided`` how a side and a name make a joint name,
+    with ``{l}`` (``l``/``r``), ``{L}`` (``L``/``R``) or ``{Side}`` (``Left``/``Right``) and ``{name}``."""
+    out: dict[str, JointSpec] = dict(zip(("root", "thorax", "head"), axial, strict=True))
+    for joint in EVAL_JOINTS[3:]:
+        side, limb = joint.split("_", 1)
+        out[joint] = sided.format(l=side[0], L=side[0].upper(), Side=side.capitalize(), name=limbs[limb])
+    return out
 
-CMU_BVH_MOTIONBUILDER_EVAL: dict[str, JointSpec] = {
-    "root": "Hips",
-    "thorax": "Neck",
-    "head": ("end_mid", "Head"),
-    "left_shoulder": "LeftArm",
-    "left_elbow": "LeftForeArm",
-    "left_wrist": "LeftHand",
-    "right_shoulder": "RightArm",
-    "right_elbow": "RightForeArm",
-    "right_wrist": "RightHand",
-    "left_hip": "LeftUpLeg",
-    "left_knee": "LeftLeg",
-    "left_ankle": "LeftFoot",
-    "right_hip": "RightUpLeg",
-    "right_knee": "RightLeg",
-    "right_ankle": "RightFoot",
-}
+
+#: The CMU ASF (the wrists are the ``lhand``/``rhand`` joints: the ends of the ``lwrist``/``rwrist`` bones).
+CMU_ASF_EVAL = eval_naming(
+    ("root", "lowerneck", ("end_mid", "head")),
+    dict(shoulder="humerus", elbow="radius", wrist="hand", hip="femur", knee="tibia", ankle="foot"),
+    "{l}{name}",
+)
+#: The 3ds Max-friendly cgspeed BVH conversion of the CMU database.
+CMU_BVH_3DSMAX_EVAL = eval_naming(
+    ("Hips", "lowerneck", ("end_mid", "Head")),
+    dict(shoulder="Shoulder", elbow="Elbow", wrist="Wrist", hip="Hip", knee="Knee", ankle="Ankle"),
+    "{Side}{name}",
+)
+#: The MotionBuilder-friendly cgspeed BVH conversion.
+CMU_BVH_MOTIONBUILDER_EVAL = eval_naming(
+    ("Hips", "Neck", ("end_mid", "Head")),
+    dict(shoulder="Arm", elbow="ForeArm", wrist="Hand", hip="UpLeg", knee="Leg", ankle="Foot"),
+    "{Side}{name}",
+)
 
 #: Known skeletons, tried in this order by :func:`eval_mapping`.
 KNOWN_MAPPINGS: dict[str, dict[str, JointSpec]] = {

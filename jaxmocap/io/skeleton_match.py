@@ -42,6 +42,7 @@ from jaxmocap.io.mocap import (
     Y_UP_TO_Z_UP,
     JointSpec,
     Motion,
+    eval_naming,
     rest_positions,
     spec_joints,
 )
@@ -59,23 +60,11 @@ __all__ = [
     "chain_errors",
 ]
 
-BANDAI_EVAL: dict[str, JointSpec] = {
-    "root": "Hips",
-    "thorax": "Neck",
-    "head": ("end_mid", "Head"),
-    "left_shoulder": "UpperArm_L",
-    "left_elbow": "LowerArm_L",
-    "left_wrist": "Hand_L",
-    "right_shoulder": "UpperArm_R",
-    "right_elbow": "LowerArm_R",
-    "right_wrist": "Hand_R",
-    "left_hip": "UpperLeg_L",
-    "left_knee": "LowerLeg_L",
-    "left_ankle": "Foot_L",
-    "right_hip": "UpperLeg_R",
-    "right_knee": "LowerLeg_R",
-    "right_ankle": "Foot_R",
-}
+BANDAI_EVAL = eval_naming(
+    ("Hips", "Neck", ("end_mid", "Head")),
+    dict(shoulder="UpperArm", elbow="LowerArm", wrist="Hand", hip="UpperLeg", knee="LowerLeg", ankle="Foot"),
+    "{name}_{L}",
+)
 
 #: Mixamo (names after the ``mixamorig:`` namespace); the head is the middle of ``Head`` and ``HeadTop_End``.
 MIXAMO_EVAL: dict[str, JointSpec] = {

@@ -21,12 +21,11 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-import tomllib
 from collections.abc import Mapping
 
 import numpy as np
 
-from jaxmocap.errors import MocapInputError
+from jaxmocap.errors import MocapInputError, load_toml
 from jaxmocap.geometry.body import EVAL_JOINTS
 from jaxmocap.io.mocap import (
     INCH,
@@ -132,13 +131,7 @@ def load_mapping(path: str | os.PathLike) -> dict[str, JointSpec]:
     """Read a TOML mapping: ``evaluation_joint = "file joint"``; ``head`` may also be ``["Head", "HeadTop"]``
     (middle of two joints) or ``["Head"]`` (middle of the joint and its end site). Unknown keys and values of
     another type raise :class:`MocapInputError`."""
-    try:
-        with open(path, "rb") as f:
-            doc = tomllib.load(f)
-    except OSError as e:
-        raise MocapInputError(path, f"cannot read mapping: {e.strerror or e}") from None
-    except tomllib.TOMLDecodeError as e:
-        raise MocapInputError(path, f"not valid TOML: {e}") from None
+    doc = load_toml(path, "mapping")
     doc = doc.get("joints", doc)
     out: dict[str, JointSpec] = {}
     for key, value in doc.items():

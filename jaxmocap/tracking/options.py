@@ -25,7 +25,7 @@ from jaxmocap.choices import (
     PARTITIONED,
     SINGLE_LAYER,
 )
-from jaxmocap.errors import MocapInputError
+from jaxmocap.errors import MocapInputError, load_toml
 from jaxmocap.geometry import body as body_mod
 from jaxmocap.likelihood import cues as cues_mod
 
@@ -343,16 +343,8 @@ def load_config(path: str | os.PathLike) -> dict:
     ``keypoints``, ``depth``; relative paths are relative to the file's folder) and ``out``, ``quiet``. Returns
     the checked values; an unknown key or a value of the wrong type is a :class:`MocapInputError` naming the
     file (and the key)."""
-    import tomllib
-
     path = os.fspath(path)
-    try:
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
-    except OSError as e:
-        raise MocapInputError(path, f"cannot read the configuration: {e.strerror or e}") from None
-    except tomllib.TOMLDecodeError as e:
-        raise MocapInputError(path, f"invalid TOML: {e}") from None
+    data = load_toml(path, "configuration")
     kinds = {**option_types(), **INPUT_KEYS, **RUN_KEYS}
     base = os.path.dirname(os.path.abspath(path))
     out = {}

@@ -155,17 +155,8 @@ class _Prepared:
         self.source = SequenceSource(path)
         if self.source.groundtruth is None:
             raise MocapInputError(path, "a sweep measures joint errors: the sequence needs groundtruth.npz")
-        self.options = TrackOptions(
-            model=spec.model,
-            filter="apf",
-            particles=spec.particles,
-            layers=spec.layers,
-            cues=spec.cues,
-            frames=spec.frames,
-            init=spec.init,
-            foreground=spec.foreground,
-            downsample=spec.downsample,
-        )
+        same = ("model", "particles", "layers", "cues", "frames", "init", "foreground", "downsample")
+        self.options = TrackOptions(filter="apf", **{k: getattr(spec, k) for k in same})
         setup = TrackSetup(self.source, self.options)
         self.frames = setup.frames
         D = setup.model.num_dofs
