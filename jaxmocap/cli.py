@@ -94,6 +94,8 @@ _SYNTH_OPTIONS: tuple[tuple[str, dict], ...] = (
         "--clothing",
         dict(default="plain", choices=("plain", "textured"), help="clothing texture (default plain)"),
     ),
+    ("--sleeves", dict(default="long", choices=("long", "short"), help="short: bare forearms")),
+    ("--wrist-bands", dict(action="store_true", help="a lime band around each wrist (Li & Kulic's markers)")),
     ("--licence", dict(help="licence line of the clip for meta.json (default: the CMU terms)")),
     ("--overwrite", dict(action="store_true", help="replace an existing sequence in --out")),
 )

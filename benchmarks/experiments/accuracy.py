@@ -6,10 +6,12 @@ Scenario (all choices stated here):
   Charleston dance; source frames ``--frames`` (default ``150:270`` at 120 fps → 30 frames at 30 fps), rendered by
   :func:`jaxmocap.synth.generate.synthesize` with the ``stereo`` preset at ``--size`` (default 320×240), photo background,
   sensor noise 0.01, virtual depth (noise 2 cm);
-* the tracker exactly as ``jaxmocap track`` runs it (:class:`jaxmocap.tracking.tracker.Tracker`: ground-truth masks as the
-  foreground, initialisation from the ground truth of the first frame, damped constant-velocity prediction, track-loss
-  handling), each configuration compiled once and run with ``--seeds`` seeds (frame ``t`` of seed ``s`` uses the key
-  ``fold_in(key(s), t)``);
+* the tracker exactly as ``jaxmocap track`` runs it (:class:`jaxmocap.tracking.tracker.Tracker`: damped
+  constant-velocity prediction, track-loss handling) on the input a real setup records (``benchmarks/scenes.py``,
+  :class:`PlateSource`): silhouettes by background subtraction against each view's empty-scene plate, the first
+  pose by inverse kinematics on the simulated BODY_25B detections; with ``--oracle``, the rendered masks and the
+  first pose fitted to the ground truth instead (both with the sequence's body file). Each configuration compiled once and run with ``--seeds`` seeds (frame ``t`` of seed ``s`` uses the
+  key ``fold_in(key(s), t)``);
 * error of a run: thesis eq. 7.1, the mean over frames and evaluation joints of the Euclidean distance between the
   model's joints at the estimate and the ground truth (mm) (:func:`jaxmocap.eval.metrics.evaluate`); tables give the mean
   ± std of that per-run error over seeds and clips, and the tracking time per frame (after compilation).
@@ -31,7 +33,7 @@ Tables:
     each whole arm and each whole leg, so each limb gets half of its two partitions' counts — torso 1000, head
     200, each arm (500 + 200) / 2 = 350, each leg 350: the same 2600 evaluations per frame.
 
-    .venv/bin/python benchmarks/experiments/accuracy.py [--seeds 5] [--quick] [--only a b c]
+    .venv/bin/python benchmarks/experiments/accuracy.py [--seeds 5] [--quick] [--only a b c] [--oracle]
 
 Writes ``benchmarks/results/accuracy.md`` (not with ``--quick``).
 """
@@ -51,11 +53,10 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmar
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 
 import common
-from scenes import CachedTracker, Config, make_sequences, track_options
+from scenes import CachedTracker, Config, make_sequences, open_source, track_options
 
 from jaxmocap.eval import metrics
 from jaxmocap.filters.factory import particles_text, partition_groups  # noqa: E402
-from jaxmocap.io.sources import SequenceSource  # noqa: E402
 from jaxmocap.tracking.options import FILTERS, build_model  # noqa: E402
 
 RESULTS = common.RESULTS / "accuracy.md"
@@ -65,11 +66,14 @@ LI_KULIC_COUNTS = (1000, 200, 350, 350, 350, 350)
 THESIS_FILTERS = ("apf", "m-apf", "fbapf", "fbapf2", "fbapf3")
 
 
-def run_config(cfg: Config, seq_dir: pathlib.Path, seeds: int, work: pathlib.Path) -> dict:
-    """Errors (mm, one per seed) and the median step time of ``cfg`` on one sequence."""
-    source = SequenceSource(seq_dir)
+def run_config(
+    cfg: Config, seq_dir: pathlib.Path, seeds: int, work: pathlib.Path, oracle: bool = False
+) -> dict:
+    """Errors (mm, one per seed) and the median step time of ``cfg`` on one sequence (``oracle``: the rendered
+    masks and ground-truth initialisation, :func:`scenes.open_source`)."""
+    source = open_source(seq_dir, oracle)
     try:
-        options = track_options(cfg)
+        options = track_options(cfg, oracle)
         out = work / "track"
         run = CachedTracker(source, out, options, quiet=True)
         gt_frames, gt_joints = metrics.load_groundtruth(seq_dir)
@@ -137,14 +141,21 @@ def fmt(errors: list[float]) -> str:
 
 
 def run_table(
-    name: str, configs: list[Config], sequences, seeds: int, work: pathlib.Path, log=print, on_row=None
+    name: str,
+    configs: list[Config],
+    sequences,
+    seeds: int,
+    work: pathlib.Path,
+    log=print,
+    on_row=None,
+    oracle: bool = False,
 ) -> list[dict]:
     rows = []
     for cfg in configs:
         errs, steps, lost, per_clip = [], [], [], {}
         for clip, seq_dir in sequences:
             t0 = time.monotonic()
-            r = run_config(cfg, seq_dir, seeds, work)
+            r = run_config(cfg, seq_dir, seeds, work, oracle)
             errs += r["errors"]
             steps.append(r["step_s"])
             lost += r["lost"]
@@ -242,8 +253,10 @@ def run(
     log=print,
     max_clips: int | None = None,
     filters: tuple[str, ...] | None = None,
+    oracle: bool = False,
 ) -> str:
-    """Run the tables; returns the markdown (and writes it to ``out`` unless ``None``)."""
+    """Run the tables; returns the markdown (and writes it to ``out`` unless ``None``). ``oracle``: track the
+    rendered masks from the ground truth's first pose (module docstring)."""
     if quick:
         seeds, frames, size, budget = 1, "150:162", "160x120", 60
     t_start = time.monotonic()
@@ -271,7 +284,7 @@ def run(
                 cfgs = [c for c in cfgs if c.filter == "sir"]
             elif filters:
                 cfgs = [c for c in cfgs if c.filter in filters]
-            rows = rows_a = run_table("a", cfgs, seqs, seeds, work, log, progress)
+            rows = rows_a = run_table("a", cfgs, seqs, seeds, work, log, progress, oracle)
             text = table_md(rows, names)
             if not quick and {"sir", "icondensation", "apf", "iapf"} <= {r["config"].filter for r in rows}:
                 text += "\n\n" + verdict_a(rows)
@@ -289,7 +302,7 @@ def run(
                     dict(r, label=r["label"].upper()) for r in rows_a if r["config"].filter in THESIS_FILTERS
                 ]
             else:
-                rows = run_table("b", cfgs, seqs, seeds, work, log, progress)
+                rows = run_table("b", cfgs, seqs, seeds, work, log, progress, oracle)
             text = table_md(rows, names)
             if not quick:
                 text += "\n\n" + verdict_b(rows)
@@ -298,7 +311,7 @@ def run(
             cfgs = configs_c(0.05 if quick else 1.0)
             if quick:
                 cfgs = cfgs[:1]
-            rows = run_table("c", cfgs, seqs, seeds, work, log, progress)
+            rows = run_table("c", cfgs, seqs, seeds, work, log, progress, oracle)
             text = table_md(rows, names)
             if not quick:
                 text += "\n\n" + verdict_c(rows)
@@ -306,18 +319,24 @@ def run(
                 f"(c) Li & Kulić Table I (full25, partitioned sampling, {seeds} seeds × {len(seqs)} clips)",
                 text,
             )
+    command = f"python {common.script(__file__)}" + (" --oracle" if oracle else "")
+    inputs = (
+        "rendered masks, initialised from the ground truth (oracle input)"
+        if oracle
+        else "silhouettes subtracted against the plates, initialised from the simulated detections"
+    )
     head = (
         "# Tracking accuracy on synthetic sequences from real CMU motion capture\n\n"
-        f"Generated by `python {common.script(__file__)}` ({common.stamp()}, "
+        f"Generated by `{command}` ({common.stamp()}, "
         f"{time.monotonic() - t_start:.0f} s): source frames {frames} at 30 fps, {size}, stereo preset, "
-        "ground-truth masks, initialised from the ground truth. Error: thesis eq. 7.1 (mean 3D joint error, mm), "
+        f"{inputs}. Error: thesis eq. 7.1 (mean 3D joint error, mm), "
         "mean ± std over runs (seeds × clips; per-clip columns over seeds). ms/frame: the compiled filter step "
         "(likelihood + resampling), median; feature extraction not included. See the module docstring for every "
         "choice.\n"
     )
     md = head + "\n" + "\n".join(sections)
     if out is not None:
-        common.write_result(out, md, f"python {common.script(__file__)}")
+        common.write_result(out, md, command)
         p = pathlib.Path(str(out) + ".partial")
         if p.exists():
             p.unlink()
@@ -337,6 +356,11 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=str(RESULTS))
     ap.add_argument("--clips", type=int, default=None, help="use only the first N clips")
     ap.add_argument("--filters", nargs="+", default=None, help="table (a): only these filters")
+    ap.add_argument(
+        "--oracle",
+        action="store_true",
+        help="rendered masks and ground-truth initialisation (default: plates)",
+    )
     a = ap.parse_args(argv)
     log = lambda s: print(s, file=sys.stderr, flush=True)  # noqa: E731
     md = run(
@@ -350,6 +374,7 @@ def main(argv=None) -> int:
         log,
         a.clips,
         tuple(a.filters) if a.filters else None,
+        a.oracle,
     )
     print(md)
     return 0

@@ -60,7 +60,7 @@ class Variant(scenes.CachedTracker):
 
 def measure(seq_dir, work, flt, particles, layers, repeats, log=print) -> dict:
     """First-step seconds and median step milliseconds of both variants of one configuration."""
-    options = scenes.track_options(scenes.Config("", "full25", flt, particles, layers, CUES))
+    options = scenes.track_options(scenes.Config("", "full25", flt, particles, layers, CUES), oracle=True)
     label = f"{flt} {particles_text(particles)} × {layers}"
     runs, first = {}, {}
     for scan in (False, True):

@@ -13,7 +13,8 @@ blur (the mean of renders at consecutive mocap frames), Gaussian sensor noise, a
 sensor (front-surface depth, smoothed inside the silhouette, Gaussian noise of ``depth_noise`` metres, 16-bit
 millimetres; :func:`jaxmocap.geometry.render.virtual_depth`).
 
-Rigs and backgrounds: :mod:`jaxmocap.synth.stage`.
+Rigs and backgrounds: :mod:`jaxmocap.synth.stage`. A face and hair on the head (default), bare forearms
+(``sleeves="short"``) and wrist bands: :mod:`jaxmocap.synth.appearance`.
 
 Each view also gets its empty-scene plate (:mod:`jaxmocap.synth.plates`, ``views/<camera>/background.png``) and
 simulated OpenPose BODY_25B detections per frame (:mod:`jaxmocap.synth.detections`, ``views/<camera>/openpose/``),
@@ -49,8 +50,8 @@ from jaxmocap.geometry import camera, render
 from jaxmocap.io import calibration, skeletons
 from jaxmocap.io import sequence as seqio
 from jaxmocap.io.mocap import JointSpec, Motion, eval_joints, forward_kinematics
+from jaxmocap.synth import appearance, plates, texture
 from jaxmocap.synth import detections as dets
-from jaxmocap.synth import plates, texture
 from jaxmocap.synth import scene as room_mod
 from jaxmocap.synth.dressing import (
     HEAD_LENGTH,
@@ -313,8 +314,11 @@ def detections_path(root: str | os.PathLike, view: str, frame: int) -> pathlib.P
     return folder / f"{view}_{int(frame):012d}_keypoints.json"
 
 
-def _clothing(m: Motion, dressing: Dressing, colours, seed: int, offset: np.ndarray, cams: camera.Rig):
-    """``albedo(render, view, source frame) -> (H, W, 3)`` of :mod:`jaxmocap.synth.texture` for this clip."""
+def _clothing(
+    m: Motion, dressing: Dressing, colours, seed: int, offset: np.ndarray, cams: camera.Rig, bare=()
+):
+    """``albedo(render, view, source frame) -> (H, W, 3)`` of :mod:`jaxmocap.synth.texture` for this clip; the
+    body parts ``bare`` get the skin's texture."""
     W, X = forward_kinematics(m.parents, m.translations(), m.local_rotations)
     X = X + offset
     J = m.num_joints
@@ -328,7 +332,7 @@ def _clothing(m: Motion, dressing: Dressing, colours, seed: int, offset: np.ndar
     axes.append(m.offsets[he] if he < J else m.end_offsets[he - J])
     waves, phases, amps = (
         jnp.asarray(a, jnp.float32)
-        for a in texture.texture_waves(dressing.part_roles, np.asarray(axes), seed)
+        for a in texture.texture_waves(dressing.part_roles, np.asarray(axes), seed, bare)
     )
     rays = [
         jnp.asarray(render.pixel_rays(cams.K[v], cams.dist[v], cams.image_size[v]))
@@ -346,6 +350,47 @@ def _clothing(m: Motion, dressing: Dressing, colours, seed: int, offset: np.ndar
         )
 
     return albedo
+
+
+def _appearance(
+    m: Motion,
+    dressing: Dressing,
+    points: np.ndarray,
+    ej: np.ndarray,
+    cams: camera.Rig,
+    face: bool,
+    bands: bool,
+):
+    """``decorate(albedo, render, view, source frame) -> (H, W, 3)``: the face and wrist bands of
+    :mod:`jaxmocap.synth.appearance` drawn over a clothing albedo. ``points (T, P, 3)`` the dressing's points and
+    ``ej (T, 15, 3)`` the evaluation joints, both in the world, at every source frame."""
+    W, _ = forward_kinematics(m.parents, m.translations(), m.local_rotations)
+    ev = {n: k for k, n in enumerate(body_mod.EVAL_JOINTS)}
+    h0, h1 = dressing.head_points
+    axes = points[:, h1] - points[:, h0]
+    hips = ej[:, ev["left_hip"]] - ej[:, ev["right_hip"]]
+    frames = appearance.head_frames(W[:, dressing.head_bone[0]], np.cross(hips, [0.0, 0.0, 1.0]), axes)
+    centres = 0.5 * (points[:, h0] + points[:, h1])
+    wrists = ej[:, [ev["left_wrist"], ev["right_wrist"]]]
+    elbows = ej[:, [ev["left_elbow"], ev["right_elbow"]]]
+    banded = jnp.asarray([r in ("forearm", "hand") for r in dressing.part_roles])
+    head_label = dressing.num_cones if face else -1
+    half = jnp.asarray([dressing.head_radius, 0.5 * dressing.head_length], jnp.float32)
+    width = appearance.BAND_WIDTH if bands else 0.0
+    f32 = lambda a: jnp.asarray(a, jnp.float32)
+    views = [
+        (f32(render.pixel_rays(cams.K[v], cams.dist[v], cams.image_size[v])), f32(cams.R[v]), f32(cams.t[v]))
+        for v in range(cams.num_views)
+    ]
+
+    def decorate(albedo, r: render.Render, v: int, i: int) -> jnp.ndarray:
+        rays, R, t = views[v]
+        return appearance.decorate(
+            albedo, r.depth, r.label, rays, R, t, head_label, f32(centres[i]), f32(frames[i]), half, banded,
+            f32(wrists[i]), f32(elbows[i]), width,
+        )  # fmt: skip
+
+    return decorate
 
 
 def _room(cams: camera.Rig, centre, light_world, points, seed: int, clutter: float):
@@ -426,6 +471,9 @@ def synthesize(
     illumination: float = 0.0,
     blur: int = 1,
     clothing: str = "plain",
+    sleeves: str = "long",
+    wrist_bands: bool = False,
+    face: bool = True,
     detections: bool = True,
     overwrite: bool = False,
     licence: str | None = None,
@@ -452,6 +500,8 @@ def synthesize(
         mask, depth and labels are those of the central frame.
       clothing: ``"plain"`` (one colour per body part) or ``"textured"`` (a solid texture per garment fixed to
         the bones, :mod:`jaxmocap.synth.texture`).
+      sleeves: ``"long"`` or ``"short"`` (skin-coloured forearms); wrist_bands: a lime band around each wrist;
+        face: a face and hair painted on the head (:mod:`jaxmocap.synth.appearance`).
       detections: write simulated OpenPose BODY_25B detections per view and frame
         (:mod:`jaxmocap.synth.detections`, in ``views/<camera>/openpose/``).
       overwrite: replace an existing sequence in ``out``.
@@ -468,6 +518,8 @@ def synthesize(
         raise ValueError("blur must be at least 1 frame")
     if clothing not in ("plain", "textured"):
         raise ValueError(f"clothing must be plain or textured, got {clothing!r}")
+    if sleeves not in appearance.SLEEVES:
+        raise ValueError(f"sleeves must be long or short, got {sleeves!r}")
     for what, val in (("noise", noise), ("depth_noise", depth_noise), ("depth_smooth", depth_smooth)):
         if not (val >= 0 and math.isfinite(val)):
             raise ValueError(f"{what} must be a non-negative number, got {val}")
@@ -488,7 +540,9 @@ def synthesize(
     out = pathlib.Path(out)
     _prepare_output(out, overwrite)
 
-    palette = texture.TEXTURED_COLOURS if clothing == "textured" else None
+    palette = dict(texture.TEXTURED_COLOURS) if clothing == "textured" else {}
+    bare = tuple(appearance.SHORT_SLEEVES) if sleeves == "short" else ()
+    palette.update({k: appearance.SHORT_SLEEVES[k] for k in bare})
     colours = jnp.asarray(dressing.colours(palette), jnp.float32)
     c, f, left = subject_frame(joints)
     light_world = LIGHT[0] * f + LIGHT[1] * left + LIGHT[2] * np.array([0.0, 0.0, 1.0])
@@ -517,7 +571,16 @@ def synthesize(
         )
         detector = dets.Detector(K, dist, Rv, tv, cams.image_size, kp, normals, int(blur))
 
-    albedo_of = _clothing(m, dressing, colours, seed, offset, cams) if clothing == "textured" else None
+    albedo_of = None
+    if clothing == "textured" or face or wrist_bands:
+        textured = (
+            _clothing(m, dressing, colours, seed, offset, cams, bare) if clothing == "textured" else None
+        )
+        decorate = _appearance(m, dressing, points, ej_all + offset, cams, face, wrist_bands)
+
+        def albedo_of(r: render.Render, v: int, s: int) -> jnp.ndarray:
+            base = colours[jnp.maximum(r.label, 0)] if textured is None else textured(r, v, s)
+            return decorate(base, r, v, s)
 
     def render_frame(i: int):
         prims = scene_primitives(points[i], dressing)
@@ -633,6 +696,11 @@ def synthesize(
         "illumination_amplitude": illumination,
         "motion_blur_frames": int(blur),
         "clothing": clothing,
+        "sleeves": sleeves,
+        "wrist_bands": {"colour": appearance.BAND_COLOUR, "width_m": appearance.BAND_WIDTH}
+        if wrist_bands
+        else None,
+        "face": bool(face),
         "light": (light_world / np.linalg.norm(light_world)).round(6),
         "plates": f"views/<camera>/{plates.PLATE}",
         "detections": {

@@ -22,7 +22,15 @@ from jaxmocap.errors import MocapInputError
 from jaxmocap.features import foreground as fg
 from jaxmocap.io import sequence as seqio
 
-__all__ = ["PLATE", "ROOM_SHADOW", "plate_path", "plate_image", "read_plate", "subtraction_iou"]
+__all__ = [
+    "PLATE",
+    "ROOM_SHADOW",
+    "plate_path",
+    "plate_image",
+    "read_plate",
+    "subtractors",
+    "subtraction_iou",
+]
 
 #: File name of a view's plate inside ``views/<camera>/``.
 PLATE = "background.png"
@@ -54,37 +62,50 @@ def read_plate(root: str | os.PathLike, view: str) -> np.ndarray:
 ROOM_SHADOW = fg.ShadowParams(alpha_min=0.5, alpha_max=0.9, cd_max=4.0)
 
 
-def subtraction_iou(
+def subtractors(
     seq: seqio.Sequence,
     thresholds: float | None = None,
     shadow: fg.ShadowParams | None | str = "auto",
     open_size: int = 1,
-) -> np.ndarray:
-    """``(T, V)`` IoU of the static-background masks against the plates with the rendered masks (module
-    docstring); a frame where both masks are empty scores 1.
+) -> list[fg.StaticBackground]:
+    """One static-background model per view of ``seq``, against its plate (BGR, like the frames it segments).
 
     ``thresholds`` (8-bit units) default to ``max(8, 4 √2 σ)`` with ``σ`` the sequence's sensor noise
     (``meta["noise"]["rgb_sigma"] · 255``): four standard deviations of the difference of two noisy exposures.
     ``shadow``: Horprasert shadow removal parameters, or ``"auto"``: :data:`ROOM_SHADOW` for a sequence rendered in
     the room (where the body casts shadows), none otherwise; its noise scale is ``√2 σ``. ``open_size``: the
-    opening's square (1: none).
+    opening's square (1: none); no dilation.
     """
     sigma = 255.0 * float(seq.meta.get("noise", {}).get("rgb_sigma", 0.01))
     if thresholds is None:
         thresholds = max(8.0, 4.0 * np.sqrt(2.0) * sigma)
     if isinstance(shadow, str):
         shadow = ROOM_SHADOW if seq.meta.get("background") == "room" else None
-    out = np.zeros((seq.num_frames, len(seq.views)))
-    for v, view in enumerate(seq.views):
-        plate = np.ascontiguousarray(read_plate(seq.root, view.name)[..., ::-1])
-        model = fg.StaticBackground(
-            plate,
+    return [
+        fg.StaticBackground(
+            np.ascontiguousarray(read_plate(seq.root, view.name)[..., ::-1]),
             thresholds,
             open_size=open_size,
             dilate_size=1,
             shadow=shadow,
             noise_std=max(1.0, np.sqrt(2.0) * sigma),
         )
+        for view in seq.views
+    ]
+
+
+def subtraction_iou(
+    seq: seqio.Sequence,
+    thresholds: float | None = None,
+    shadow: fg.ShadowParams | None | str = "auto",
+    open_size: int = 1,
+) -> np.ndarray:
+    """``(T, V)`` IoU of the static-background masks against the plates (:func:`subtractors`, same arguments) with
+    the rendered masks (module docstring); a frame where both masks are empty scores 1."""
+    out = np.zeros((seq.num_frames, len(seq.views)))
+    for v, (view, model) in enumerate(
+        zip(seq.views, subtractors(seq, thresholds, shadow, open_size), strict=True)
+    ):
         for t in range(seq.num_frames):
             pred = model.update(np.ascontiguousarray(view.rgb(t)[..., ::-1])) > 0
             truth = view.mask(t) > 0

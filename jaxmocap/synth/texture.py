@@ -67,11 +67,14 @@ def garment_of(role: str) -> str:
     return _ROLE_GARMENT.get(role, "other")
 
 
-def texture_waves(roles, bone_axes: np.ndarray, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def texture_waves(
+    roles, bone_axes: np.ndarray, seed: int, bare=()
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Wave vectors ``(L, N, 3)`` (cycles per metre), phases ``(L, N)`` and amplitudes ``(L, N)`` of every label.
 
     ``roles``: body part per label; ``bone_axes (L, 3)``: each bone's unit direction in its joint's frame (the
-    stripes run across it). Labels of one garment share its weave, so that a garment looks like one cloth."""
+    stripes run across it); ``bare``: body parts left uncovered (skin's texture, e.g. forearms in short
+    sleeves). Labels of one garment share its weave, so that a garment looks like one cloth."""
     garments = list(GARMENTS)
     L, N = len(roles), _N_WEAVE + 3
     waves, phases, amps = np.zeros((L, N, 3)), np.zeros((L, N)), np.zeros((L, N))
@@ -83,7 +86,7 @@ def texture_waves(roles, bone_axes: np.ndarray, seed: int) -> tuple[np.ndarray, 
         k = d / rng.uniform(0.015, 0.04, (_N_WEAVE, 1))
         weave[name] = (k, rng.uniform(0, 2 * np.pi, _N_WEAVE), rng.uniform(0, 2 * np.pi, 3))
     for l, role in enumerate(roles):
-        name = garment_of(role)
+        name = "skin" if role in bare else garment_of(role)
         a_weave, a_stripe, l_stripe, a_check, l_check = GARMENTS[name]
         k, ph, ph2 = weave[name]
         axis = np.asarray(bone_axes[l], np.float64)

@@ -402,9 +402,13 @@ def test_options_are_checked(tmp_path):
 def test_command(tmp_path, capsys):
     out = tmp_path / "seq"
     argv = ["synth", "--motion", "demo", "--rig", "frontal-lateral", "--frames", "40:48", "--size", "160x120"]
-    assert cli.main([*argv, "--seed", "2", "--quiet", "--out", str(out)]) == 0
+    assert (
+        cli.main([*argv, "--seed", "2", "--sleeves", "short", "--wrist-bands", "--quiet", "--out", str(out)])
+        == 0
+    )
     seq = seqio.load_sequence(out)
     assert seq.num_frames == 2 and seq.view_names == ("frontal", "lateral") and seq.meta["seed"] == 2
+    assert seq.meta["sleeves"] == "short" and seq.meta["wrist_bands"]["width_m"] > 0
     assert cli.main([*argv, "--out", str(out)]) == 2  # not empty
     assert cli.main([*argv, "--fps", "0", "--overwrite", "--out", str(out)]) == 2
     err = capsys.readouterr().err
