@@ -175,8 +175,10 @@ class TrackSetup:
         self.notes = list(getattr(source, "notes", []))
         self.body_dimensions = self._measured_body()
         body = None if o.body == "detections" else o.body
+        # dimensions measured from the detections replace the input's own body file (``body = "detections"``)
+        fallback = None if self.body_dimensions else source.body_path
         check_export_options(o.smooth, o.bvh_units, source.fps)
-        self.model = build_model(o.model, body, source.body_path, self.body_dimensions)
+        self.model = build_model(o.model, body, fallback, self.body_dimensions)
         cues = parse_cues(o.cues) or default_cues(self.model.name, source.has_depth, source.has_keypoints)
         for name, _ in cues:
             if name == "depth" and not source.has_depth:
@@ -243,9 +245,8 @@ class TrackSetup:
 
         dims = body_dimensions(src.keypoints, src.rig)
         if len(dims) < 6:
-            self.notes.append(
-                "too few triangulated detections to measure the subject: preset body dimensions"
-            )
+            kept = "the input's body file" if src.body_path is not None else "preset body dimensions"
+            self.notes.append(f"too few triangulated detections to measure the subject: {kept}")
             return None
         shown = ", ".join(
             f"{k.replace('_length', '')} {v:.2f}" for k, v in dims.items() if k.endswith("length")
