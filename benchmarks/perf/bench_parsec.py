@@ -18,6 +18,14 @@ for the whole tracker.
 ``--devices 2`` splits the particles over two XLA host devices (one per core) with ``shard_map``.
 ``--pool-threads 1`` starts XLA's CPU backend with one intra-op thread instead of one per core (XLA sizes the pool
 from the process's affinity mask: the mask is narrowed while the backend starts and restored after).
+
+``--xla-options NAME=VALUE ...`` compiles the same lowered likelihood once more per option (XLA debug options passed
+to ``compile(compiler_options=...)``, e.g. ``xla_cpu_prefer_vector_width=512``) and times each against the default
+compilation in the same process, ``--ab-rounds`` interleaved rounds (the order alternating), with the largest
+difference of its log-likelihoods from the default's (0: bit-identical).
+
+    .venv/bin/python benchmarks/perf/bench_parsec.py --bodytrack-rounds 0 --xla-options \
+        xla_cpu_prefer_vector_width=512 xla_cpu_enable_concurrency_optimized_scheduler=true
 """
 
 from __future__ import annotations
@@ -54,6 +62,10 @@ def _args(argv=None):
         default=5,
         help="side-by-side rounds with bodytrack's ll_bench (0: none)",
     )
+    ap.add_argument(
+        "--xla-options", nargs="*", default=[], metavar="NAME=VALUE", help="A/B against the default"
+    )
+    ap.add_argument("--ab-rounds", type=int, default=7, help="interleaved rounds of --xla-options")
     return ap.parse_args(argv)
 
 
@@ -86,6 +98,47 @@ def _png(p):
 def _stats(t: common.Timings):
     """Median and minimum wall time, median CPU time."""
     return np.median(t.wall), np.min(t.wall), np.median(t.cpu)
+
+
+def _option(text: str) -> dict:
+    """``NAME=VALUE`` → ``{NAME: VALUE}`` with VALUE a bool, an int or a string."""
+    name, _, value = text.partition("=")
+    low = value.lower()
+    v = low == "true" if low in ("true", "false") else int(value) if value.lstrip("-").isdigit() else value
+    return {name: v}
+
+
+def xla_options_ab(f, X, obs, options: list[str], rounds: int, calls: int = 5) -> None:
+    """Each XLA compiler option against the default compilation of ``f``, interleaved in one process: median µs
+    per particle (wall, process CPU) over ``rounds`` rounds of the median of ``calls`` calls, the per-round ratio
+    default / option (above 1: the option is faster) and the largest |Δ loglik| against the default."""
+    low = f.lower(X, obs)
+    progs = {"default": low.compile()}
+    for o in options:
+        progs[o] = low.compile(compiler_options=_option(o))
+    ref = np.asarray(progs["default"](X, obs))
+    n = X.shape[0]
+    wall = {k: [] for k in progs}
+    cpu = {k: [] for k in progs}
+    for r in range(rounds):
+        for k in list(progs)[:: 1 if r % 2 == 0 else -1]:
+            t = common.timed_calls(lambda k=k: progs[k](X, obs).block_until_ready(), calls, warmup=1)
+            wall[k].append(np.median(t.wall) / n * 1e6)
+            cpu[k].append(np.median(t.cpu) / n * 1e6)
+    print(
+        f"\nXLA compiler options, {rounds} interleaved rounds in this process (load {os.getloadavg()[0]:.1f}):\n"
+    )
+    print(
+        "| compilation | µs/particle (median) | process CPU µs | default / this, per round | median | max abs diff |"
+    )
+    print("|---|---|---|---|---|---|")
+    for k, prog in progs.items():
+        ratio = np.asarray(wall["default"]) / np.asarray(wall[k])
+        diff = np.abs(np.asarray(prog(X, obs)) - ref).max()
+        print(
+            f"| {k} | {np.median(wall[k]):.2f} | {np.median(cpu[k]):.2f} | {', '.join(f'{x:.2f}' for x in ratio)} "
+            f"| **{np.median(ratio):.2f}** | {diff:.1e} |"
+        )
 
 
 def main(args):
@@ -150,6 +203,8 @@ def main(args):
         f"max |Δ loglik| {np.abs(ll[ok] - ll_np[ok]).max():.2e}, "
         f"exactly equal {np.mean(ll[ok] == ll_np[ok].astype(np.float32)):.3f}"
     )
+    if args.xla_options:
+        xla_options_ab(f, Xj, obs, args.xla_options, args.ab_rounds)
     if args.bodytrack_rounds > 0:
         bodytrack.build()
         reps = 5
