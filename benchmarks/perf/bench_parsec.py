@@ -24,8 +24,12 @@ to ``compile(compiler_options=...)``, e.g. ``xla_cpu_prefer_vector_width=512``) 
 compilation in the same process, ``--ab-rounds`` interleaved rounds (the order alternating), with the largest
 difference of its log-likelihoods from the default's (0: bit-identical).
 
-    .venv/bin/python benchmarks/perf/bench_parsec.py --bodytrack-rounds 0 --xla-options \
-        xla_cpu_prefer_vector_width=512 xla_cpu_enable_concurrency_optimized_scheduler=true
+    .venv/bin/python benchmarks/perf/bench_parsec.py --bodytrack-rounds 0 --xla-options xla_cpu_prefer_vector_width=512
+
+``--edge-chunks C[,C...] ...`` does the same for other edge samples per loop iteration
+(:class:`jaxmocap.parsec.likelihood.Config`: ``8`` for every group, or one per group, ``12,12,8,8,6,6``):
+
+    .venv/bin/python benchmarks/perf/bench_parsec.py --bodytrack-rounds 0 --edge-chunks 8 --ab-rounds 15
 """
 
 from __future__ import annotations
@@ -65,7 +69,12 @@ def _args(argv=None):
     ap.add_argument(
         "--xla-options", nargs="*", default=[], metavar="NAME=VALUE", help="A/B against the default"
     )
-    ap.add_argument("--ab-rounds", type=int, default=7, help="interleaved rounds of --xla-options")
+    ap.add_argument(
+        "--edge-chunks", nargs="*", default=[], metavar="C[,C...]", help="A/B of Config(chunk=...)"
+    )
+    ap.add_argument(
+        "--ab-rounds", type=int, default=7, help="interleaved rounds of --xla-options / --edge-chunks"
+    )
     return ap.parse_args(argv)
 
 
@@ -108,15 +117,13 @@ def _option(text: str) -> dict:
     return {name: v}
 
 
-def xla_options_ab(f, X, obs, options: list[str], rounds: int, calls: int = 5) -> None:
-    """Each XLA compiler option against the default compilation of ``f``, interleaved in one process: median µs
-    per particle (wall, process CPU) over ``rounds`` rounds of the median of ``calls`` calls, the per-round ratio
-    default / option (above 1: the option is faster) and the largest |Δ loglik| against the default."""
-    low = f.lower(X, obs)
-    progs = {"default": low.compile()}
-    for o in options:
-        progs[o] = low.compile(compiler_options=_option(o))
-    ref = np.asarray(progs["default"](X, obs))
+def ab_table(progs: dict, X, obs, rounds: int, title: str, calls: int = 5) -> None:
+    """Print ``progs`` (name → compiled likelihood; the first the baseline) timed interleaved in this process:
+    median µs per particle (wall, process CPU) over ``rounds`` rounds of the median of ``calls`` calls, the
+    per-round ratio baseline / this (above 1: this is faster), the median CPU ratio and the largest |Δ loglik|
+    against the baseline."""
+    base = next(iter(progs))
+    ref = np.asarray(progs[base](X, obs))
     n = X.shape[0]
     wall = {k: [] for k in progs}
     cpu = {k: [] for k in progs}
@@ -125,19 +132,19 @@ def xla_options_ab(f, X, obs, options: list[str], rounds: int, calls: int = 5) -
             t = common.timed_calls(lambda k=k: progs[k](X, obs).block_until_ready(), calls, warmup=1)
             wall[k].append(np.median(t.wall) / n * 1e6)
             cpu[k].append(np.median(t.cpu) / n * 1e6)
+    print(f"\n{title}, {rounds} interleaved rounds in this process (load {os.getloadavg()[0]:.1f}):\n")
     print(
-        f"\nXLA compiler options, {rounds} interleaved rounds in this process (load {os.getloadavg()[0]:.1f}):\n"
+        f"| compilation | µs/particle (median) | process CPU µs | {base} / this, per round | median | CPU ratio "
+        "| max abs diff |"
     )
-    print(
-        "| compilation | µs/particle (median) | process CPU µs | default / this, per round | median | max abs diff |"
-    )
-    print("|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|")
     for k, prog in progs.items():
-        ratio = np.asarray(wall["default"]) / np.asarray(wall[k])
+        ratio = np.asarray(wall[base]) / np.asarray(wall[k])
+        cratio = np.median(np.asarray(cpu[base]) / np.asarray(cpu[k]))
         diff = np.abs(np.asarray(prog(X, obs)) - ref).max()
         print(
             f"| {k} | {np.median(wall[k]):.2f} | {np.median(cpu[k]):.2f} | {', '.join(f'{x:.2f}' for x in ratio)} "
-            f"| **{np.median(ratio):.2f}** | {diff:.1e} |"
+            f"| **{np.median(ratio):.2f}** | {cratio:.2f} | {diff:.1e} |"
         )
 
 
@@ -204,7 +211,17 @@ def main(args):
         f"exactly equal {np.mean(ll[ok] == ll_np[ok].astype(np.float32)):.3f}"
     )
     if args.xla_options:
-        xla_options_ab(f, Xj, obs, args.xla_options, args.ab_rounds)
+        low = f.lower(Xj, obs)
+        progs = {"default": low.compile()}
+        progs.update({o: low.compile(compiler_options=_option(o)) for o in args.xla_options})
+        ab_table(progs, Xj, obs, args.ab_rounds, "XLA compiler options")
+    if args.edge_chunks:
+        progs = {"default": f}
+        for c in args.edge_chunks:
+            chunk = tuple(int(v) for v in c.split(","))
+            cfg = pl.Config(chunk=chunk[0] if len(chunk) == 1 else chunk)
+            progs[f"chunk={c}"] = jax.jit(pl.make_loglik_batch(shape, cams, cfg))
+        ab_table(progs, Xj, obs, args.ab_rounds, "Edge samples per loop iteration (Config.chunk)")
     if args.bodytrack_rounds > 0:
         bodytrack.build()
         reps = 5
