@@ -286,12 +286,13 @@ def _count(length: jnp.ndarray, step: float, cap: int) -> tuple[jnp.ndarray, jnp
 
 def _index(x, y, offset, W: int, H: int, active):
     """Flat pixel index (int32) and counted mask of samples ``(x, y)`` (float32): ``int(x + 0.5)`` truncates
-    toward 0, so a sample counts iff ``−1 < x + 0.5 < W`` and ``−1 < y + 0.5 < H``."""
-    xs = x + 0.5
-    ys = y + 0.5
-    m = active & (xs > -1.0) & (xs < W) & (ys > -1.0) & (ys < H)
-    idx = offset + jnp.floor(jnp.maximum(ys, 0.0)) * W + jnp.floor(jnp.maximum(xs, 0.0))
-    return jnp.where(m, idx, 0.0).astype(jnp.int32), m
+    toward 0, so a sample counts iff ``−1 < x + 0.5 < W`` and ``−1 < y + 0.5 < H``, that is iff the truncated
+    column and row lie in ``[0, W)`` and ``[0, H)``: one unsigned comparison each (a negative one wraps to a huge
+    unsigned value; a float out of the int32 range converts to the minimum or maximum int32, outside too)."""
+    xi = (x + 0.5).astype(jnp.int32)
+    yi = (y + 0.5).astype(jnp.int32)
+    m = active & (xi.astype(jnp.uint32) < W) & (yi.astype(jnp.uint32) < H)
+    return jnp.where(m, offset.astype(jnp.int32) + yi * W + xi, 0), m
 
 
 def _gather(flat, idx_masks):
