@@ -30,14 +30,22 @@ difference of its log-likelihoods from the default's (0: bit-identical).
 (:class:`jaxmocap.parsec.likelihood.Config`: ``8`` for every group, or one per group, ``12,12,8,8,6,6``):
 
     .venv/bin/python benchmarks/perf/bench_parsec.py --bodytrack-rounds 0 --edge-chunks 8 --ab-rounds 15
+
+``--against REV`` does the same for ``jaxmocap/parsec/likelihood.py`` as it was at git revision ``REV`` (read with
+``git show``, imported beside this checkout's, the rest of the package this checkout's):
+
+    .venv/bin/python benchmarks/perf/bench_parsec.py --bodytrack-rounds 0 --against main --ab-rounds 11
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import os
 import pathlib
+import subprocess
 import sys
+import tempfile
 import time
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmarks/: the shared modules
@@ -72,9 +80,8 @@ def _args(argv=None):
     ap.add_argument(
         "--edge-chunks", nargs="*", default=[], metavar="C[,C...]", help="A/B of Config(chunk=...)"
     )
-    ap.add_argument(
-        "--ab-rounds", type=int, default=7, help="interleaved rounds of --xla-options / --edge-chunks"
-    )
+    ap.add_argument("--against", metavar="REV", help="A/B of the likelihood module at git revision REV")
+    ap.add_argument("--ab-rounds", type=int, default=7, help="interleaved rounds of the A/B options")
     return ap.parse_args(argv)
 
 
@@ -146,6 +153,23 @@ def ab_table(progs: dict, X, obs, rounds: int, title: str, calls: int = 5) -> No
             f"| {k} | {np.median(wall[k]):.2f} | {np.median(cpu[k]):.2f} | {', '.join(f'{x:.2f}' for x in ratio)} "
             f"| **{np.median(ratio):.2f}** | {cratio:.2f} | {diff:.1e} |"
         )
+
+
+def likelihood_at(rev: str):
+    """``jaxmocap/parsec/likelihood.py`` as of git revision ``rev``, imported as its own module."""
+    src = subprocess.run(
+        ["git", "-C", str(common.ROOT), "show", f"{rev}:jaxmocap/parsec/likelihood.py"],
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout
+    path = pathlib.Path(tempfile.mkdtemp()) / "likelihood_at_rev.py"
+    path.write_text(src)
+    spec = importlib.util.spec_from_file_location("likelihood_at_rev", path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod  # dataclasses look their module up
+    spec.loader.exec_module(mod)
+    return mod
 
 
 def main(args):
@@ -222,6 +246,10 @@ def main(args):
             cfg = pl.Config(chunk=chunk[0] if len(chunk) == 1 else chunk)
             progs[f"chunk={c}"] = jax.jit(pl.make_loglik_batch(shape, cams, cfg))
         ab_table(progs, Xj, obs, args.ab_rounds, "Edge samples per loop iteration (Config.chunk)")
+    if args.against:
+        at = likelihood_at(args.against)
+        progs = {args.against: jax.jit(at.make_loglik_batch(shape, cams)), "this checkout": f}
+        ab_table(progs, Xj, obs, args.ab_rounds, f"The likelihood at {args.against} and now")
     if args.bodytrack_rounds > 0:
         bodytrack.build()
         reps = 5
