@@ -194,6 +194,8 @@ def speed_rows(trackers: dict, rounds: int, log=print) -> tuple[list[dict], dict
 
 
 def split_lines(runs: dict) -> list[str]:
+    """Table rows per configuration and condition: medians over the runs' frames of our filter step, our host
+    maps, and of the runs' per-frame totals (seconds)."""
     lines = []
     for (c, cond), rs in runs.items():
         maps = np.median([r.maps for r in rs])
