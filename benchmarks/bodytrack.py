@@ -2,9 +2,10 @@
 
 ``build()`` runs ``make -C $BODYTRACK_SRC OUT=<repo>/build/bodytrack`` (``BODYTRACK_SRC`` default
 ``/work/shared/parsec/bodytrack``: its README and Makefile; ``build/`` is git-ignored); ``bodytrack_likelihood``
-runs its ``ll_bench`` (``TrackingModel::LogLikelihood`` alone), ``bodytrack_frames`` its serial tracker with
-per-frame times; ``busy()`` starts a CPU-bound child process for the loaded rounds; ``label`` names a round idle
-only when the 1-minute load average is below 1.0.
+runs its ``ll_bench`` (``TrackingModel::LogLikelihood`` alone), ``bodytrack_run`` / ``bodytrack_frames`` a tracker
+build with per-frame and whole-run times; :class:`Tracker` is jaxmocap's side of the tracker comparison; ``busy()``
+starts a CPU-bound child process for the loaded rounds; ``label`` names a round idle only when the 1-minute load
+average is below 1.0.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import pathlib
 import subprocess
 import sys
 import time
+from typing import NamedTuple
 
 import common
 import numpy as np
@@ -43,12 +45,22 @@ def busy(on: bool):
         yield
         return
     p = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    _BUSY.append(p)
     try:
         time.sleep(0.5)  # let it reach the run queue
         yield
     finally:
+        _BUSY.remove(p)
         p.kill()
         p.wait()
+
+
+_BUSY: list = []  # the busy processes of the active :func:`busy` blocks
+
+
+def busy_now() -> bool:
+    """Whether a :func:`busy` process is running (a measurement function can tell its condition)."""
+    return bool(_BUSY)
 
 
 def bodytrack_likelihood(particles: int, repeats: int, out: pathlib.Path = BUILD) -> dict:
@@ -66,13 +78,15 @@ def bodytrack_likelihood(particles: int, repeats: int, out: pathlib.Path = BUILD
 MODELS = {"serial": ("bodytrack-serial", "4", "1"), "pthreads": ("bodytrack-pthreads", "2", "2")}
 
 
-def bodytrack_frames(
+def bodytrack_run(
     particles: int, layers: int, frames: int = 2, model: str = "serial", out: pathlib.Path = BUILD
-) -> list[float]:
-    """Seconds per frame of bodytrack's ``model`` build (:data:`MODELS`): intervals between its "Processing frame"
-    lines (the last frame ends when the process exits)."""
+) -> tuple[list[float], float]:
+    """``(seconds per frame, whole-run seconds)`` of bodytrack's ``model`` build (:data:`MODELS`) on ``frames``
+    frames of sequenceB_2: per frame the intervals between its "Processing frame" lines (the last frame ends when
+    the process exits); the whole run from the process's start to its exit."""
     exe, tm, nt = MODELS[model]
     argv = [str(out / exe), str(SEQ), "4", str(frames), str(particles), str(layers), tm, nt, "0"]
+    t0 = time.perf_counter()
     p = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, cwd=out)
     stamps = []
     for line in p.stdout:
@@ -81,8 +95,69 @@ def bodytrack_frames(
     p.wait()
     end = time.perf_counter()
     if p.returncode != 0 or len(stamps) != frames:
-        raise RuntimeError(f"bodytrack-serial failed (exit {p.returncode}, {len(stamps)} frames)")
-    return list(np.diff([*stamps, end]))
+        raise RuntimeError(f"{exe} failed (exit {p.returncode}, {len(stamps)} frames)")
+    return list(np.diff([*stamps, end])), end - t0
+
+
+def bodytrack_frames(
+    particles: int, layers: int, frames: int = 2, model: str = "serial", out: pathlib.Path = BUILD
+) -> list[float]:
+    """Seconds per frame of :func:`bodytrack_run`."""
+    return bodytrack_run(particles, layers, frames, model, out)[0]
+
+
+class TrackerRun(NamedTuple):
+    """One run of :class:`Tracker` over F frames: ``estimates (F, 31)`` (float64, PARSEC units), ``maps (F,)`` the
+    host edge/foreground maps and ``step (F,)`` the compiled filter step (all layers), seconds per frame."""
+
+    estimates: np.ndarray
+    maps: np.ndarray
+    step: np.ndarray
+
+    @property
+    def per_frame(self) -> float:
+        """Median over the frames of maps + step (seconds)."""
+        return float(np.median(self.maps + self.step))
+
+
+class Tracker:
+    """jaxmocap's PARSEC tracker at ``particles`` × ``layers``: :func:`jaxmocap.parsec.annealing.parsec_apf` with the
+    PARSEC likelihood and bodytrack's initialisation (``InitialPose + N(0, σ_0)`` weighted against frame 0 with its
+    β), the start and the step each jitted once (compiled by the first :meth:`run`)."""
+
+    def __init__(self, seq, particles: int, layers: int):
+        import jax
+        import jax.numpy as jnp
+
+        from jaxmocap.parsec import track as ptrack
+        from jaxmocap.parsec.annealing import parsec_apf
+
+        self.seq, self._jax = seq, jax
+        std = jnp.asarray(seq.pose_std, jnp.float32)
+        x0 = jnp.asarray(seq.initial_pose, jnp.float32)
+        loglik = ptrack.make_loglik(seq.shape, seq.cameras)  # bodytrack drops invalid poses (−1e10)
+        filt = parsec_apf(loglik, std, particles, layers)
+        self._start = jax.jit(lambda k, o: ptrack.weighted_start(filt, loglik, k, x0, std, o))
+        self._step = jax.jit(filt.step)
+
+    def run(self, seed: int = 0, frames: int | None = None) -> TrackerRun:
+        """Track frames ``0 … frames − 1`` (all by default) with key ``seed``; each frame timed as its host maps
+        (``seq.observation(t)``) and the filter step, which waits for its particles."""
+        jax, seq = self._jax, self.seq
+        key = jax.random.key(seed)
+        state = self._start(jax.random.fold_in(key, 1000), seq.observation(0))
+        jax.block_until_ready(state.particles)
+        est, maps, step = [], [], []
+        for t in range(len(seq.frames) if frames is None else frames):
+            t0 = time.perf_counter()
+            obs = seq.observation(t)
+            t1 = time.perf_counter()
+            state, info = self._step(jax.random.fold_in(key, t), state, obs)
+            jax.block_until_ready(state.particles)
+            maps.append(t1 - t0)
+            step.append(time.perf_counter() - t1)
+            est.append(np.asarray(info.estimate, np.float64))
+        return TrackerRun(np.stack(est), np.asarray(maps), np.asarray(step))
 
 
 def cpu() -> str:

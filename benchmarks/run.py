@@ -300,7 +300,7 @@ SCRIPTS: dict[str, Script] = {
     "parsec_track": Script(
         "PARSEC sequenceB_2 tracked, against bodytrack",
         "experiments/parsec_track.py",
-        "--seeds 3 --report",
+        "--seeds 3 --rounds 3 --report",
         writes=("parsec_track.md",),
         env="JAX_PLATFORMS=cpu",
     ),

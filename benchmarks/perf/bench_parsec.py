@@ -18,14 +18,34 @@ for the whole tracker.
 ``--devices 2`` splits the particles over two XLA host devices (one per core) with ``shard_map``.
 ``--pool-threads 1`` starts XLA's CPU backend with one intra-op thread instead of one per core (XLA sizes the pool
 from the process's affinity mask: the mask is narrowed while the backend starts and restored after).
+
+``--xla-options NAME=VALUE ...`` compiles the same lowered likelihood once more per option (XLA debug options passed
+to ``compile(compiler_options=...)``, e.g. ``xla_cpu_prefer_vector_width=512``) and times each against the default
+compilation in the same process, ``--ab-rounds`` interleaved rounds (the order alternating), with the largest
+difference of its log-likelihoods from the default's (0: bit-identical).
+
+    .venv/bin/python benchmarks/perf/bench_parsec.py --bodytrack-rounds 0 --xla-options xla_cpu_prefer_vector_width=512
+
+``--edge-chunks C[,C...] ...`` does the same for other edge samples per loop iteration
+(:class:`jaxmocap.parsec.likelihood.Config`: ``8`` for every group, or one per group, ``12,12,8,8,6,6``):
+
+    .venv/bin/python benchmarks/perf/bench_parsec.py --bodytrack-rounds 0 --edge-chunks 8 --ab-rounds 15
+
+``--against REV`` does the same for ``jaxmocap/parsec/likelihood.py`` as it was at git revision ``REV`` (read with
+``git show``, imported beside this checkout's, the rest of the package this checkout's):
+
+    .venv/bin/python benchmarks/perf/bench_parsec.py --bodytrack-rounds 0 --against main --ab-rounds 11
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import os
 import pathlib
+import subprocess
 import sys
+import tempfile
 import time
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmarks/: the shared modules
@@ -54,6 +74,14 @@ def _args(argv=None):
         default=5,
         help="side-by-side rounds with bodytrack's ll_bench (0: none)",
     )
+    ap.add_argument(
+        "--xla-options", nargs="*", default=[], metavar="NAME=VALUE", help="A/B against the default"
+    )
+    ap.add_argument(
+        "--edge-chunks", nargs="*", default=[], metavar="C[,C...]", help="A/B of Config(chunk=...)"
+    )
+    ap.add_argument("--against", metavar="REV", help="A/B of the likelihood module at git revision REV")
+    ap.add_argument("--ab-rounds", type=int, default=7, help="interleaved rounds of the A/B options")
     return ap.parse_args(argv)
 
 
@@ -86,6 +114,62 @@ def _png(p):
 def _stats(t: common.Timings):
     """Median and minimum wall time, median CPU time."""
     return np.median(t.wall), np.min(t.wall), np.median(t.cpu)
+
+
+def _option(text: str) -> dict:
+    """``NAME=VALUE`` → ``{NAME: VALUE}`` with VALUE a bool, an int or a string."""
+    name, _, value = text.partition("=")
+    low = value.lower()
+    v = low == "true" if low in ("true", "false") else int(value) if value.lstrip("-").isdigit() else value
+    return {name: v}
+
+
+def ab_table(progs: dict, X, obs, rounds: int, title: str, calls: int = 5) -> None:
+    """Print ``progs`` (name → compiled likelihood; the first the baseline) timed interleaved in this process:
+    median µs per particle (wall, process CPU) over ``rounds`` rounds of the median of ``calls`` calls, the
+    per-round ratio baseline / this (above 1: this is faster), the median CPU ratio and the largest |Δ loglik|
+    against the baseline."""
+    base = next(iter(progs))
+    ref = np.asarray(progs[base](X, obs))
+    n = X.shape[0]
+    wall = {k: [] for k in progs}
+    cpu = {k: [] for k in progs}
+    for r in range(rounds):
+        for k in list(progs)[:: 1 if r % 2 == 0 else -1]:
+            t = common.timed_calls(lambda k=k: progs[k](X, obs).block_until_ready(), calls, warmup=1)
+            wall[k].append(np.median(t.wall) / n * 1e6)
+            cpu[k].append(np.median(t.cpu) / n * 1e6)
+    print(f"\n{title}, {rounds} interleaved rounds in this process (load {os.getloadavg()[0]:.1f}):\n")
+    print(
+        f"| compilation | µs/particle (median) | process CPU µs | {base} / this, per round | median | CPU ratio "
+        "| max abs diff |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    for k, prog in progs.items():
+        ratio = np.asarray(wall[base]) / np.asarray(wall[k])
+        cratio = np.median(np.asarray(cpu[base]) / np.asarray(cpu[k]))
+        diff = np.abs(np.asarray(prog(X, obs)) - ref).max()
+        print(
+            f"| {k} | {np.median(wall[k]):.2f} | {np.median(cpu[k]):.2f} | {', '.join(f'{x:.2f}' for x in ratio)} "
+            f"| **{np.median(ratio):.2f}** | {cratio:.2f} | {diff:.1e} |"
+        )
+
+
+def likelihood_at(rev: str):
+    """``jaxmocap/parsec/likelihood.py`` as of git revision ``rev``, imported as its own module."""
+    src = subprocess.run(
+        ["git", "-C", str(common.ROOT), "show", f"{rev}:jaxmocap/parsec/likelihood.py"],
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout
+    path = pathlib.Path(tempfile.mkdtemp()) / "likelihood_at_rev.py"
+    path.write_text(src)
+    spec = importlib.util.spec_from_file_location("likelihood_at_rev", path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod  # dataclasses look their module up
+    spec.loader.exec_module(mod)
+    return mod
 
 
 def main(args):
@@ -150,6 +234,22 @@ def main(args):
         f"max |Δ loglik| {np.abs(ll[ok] - ll_np[ok]).max():.2e}, "
         f"exactly equal {np.mean(ll[ok] == ll_np[ok].astype(np.float32)):.3f}"
     )
+    if args.xla_options:
+        low = f.lower(Xj, obs)
+        progs = {"default": low.compile()}
+        progs.update({o: low.compile(compiler_options=_option(o)) for o in args.xla_options})
+        ab_table(progs, Xj, obs, args.ab_rounds, "XLA compiler options")
+    if args.edge_chunks:
+        progs = {"default": f}
+        for c in args.edge_chunks:
+            chunk = tuple(int(v) for v in c.split(","))
+            cfg = pl.Config(chunk=chunk[0] if len(chunk) == 1 else chunk)
+            progs[f"chunk={c}"] = jax.jit(pl.make_loglik_batch(shape, cams, cfg))
+        ab_table(progs, Xj, obs, args.ab_rounds, "Edge samples per loop iteration (Config.chunk)")
+    if args.against:
+        at = likelihood_at(args.against)
+        progs = {args.against: jax.jit(at.make_loglik_batch(shape, cams)), "this checkout": f}
+        ab_table(progs, Xj, obs, args.ab_rounds, f"The likelihood at {args.against} and now")
     if args.bodytrack_rounds > 0:
         bodytrack.build()
         reps = 5

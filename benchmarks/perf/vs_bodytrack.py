@@ -50,8 +50,6 @@ import numpy as np  # noqa: E402
 
 from jaxmocap import parsec  # noqa: E402
 from jaxmocap.parsec import likelihood as pl  # noqa: E402
-from jaxmocap.parsec import track as ptrack  # noqa: E402
-from jaxmocap.parsec.annealing import parsec_apf  # noqa: E402
 
 TRACKER_CONFIGS = ((4000, 5), (1000, 3))
 
@@ -69,21 +67,9 @@ class Jaxmocap:
         self.X = jnp.asarray(X)
         self.ll = jax.jit(pl.make_loglik_batch(seq.shape, seq.cameras))
         self.ll(self.X, self.obs0).block_until_ready()
-        self.runners = {c: self._runner(*c) for c in TRACKER_CONFIGS}
+        self.trackers = {c: bt.Tracker(seq, *c) for c in TRACKER_CONFIGS}
         for c in TRACKER_CONFIGS:  # compile
             self.frames(c)
-
-    def _runner(self, n: int, layers: int):
-        seq = self.seq
-        std = jnp.asarray(seq.pose_std, jnp.float32)
-        loglik = ptrack.make_loglik(seq.shape, seq.cameras)
-        filt = parsec_apf(loglik, std, n, layers)
-        start = jax.jit(
-            lambda k, o: ptrack.weighted_start(
-                filt, loglik, k, jnp.asarray(seq.initial_pose, jnp.float32), std, o
-            )
-        )
-        return start, jax.jit(filt.step)
 
     def likelihood_us(self, repeats: int) -> tuple[float, float]:
         """Median wall and process-CPU µs per particle over ``repeats`` calls."""
@@ -91,20 +77,9 @@ class Jaxmocap:
         n = self.X.shape[0]
         return float(np.median(t.wall)) / n * 1e6, float(np.median(t.cpu)) / n * 1e6
 
-    def frames(self, config: tuple[int, int], seed: int = 0) -> list[float]:
-        """Seconds per frame: host maps of frame ``t`` + the compiled filter step."""
-        start, step = self.runners[config]
-        key = jax.random.key(seed)
-        state = start(jax.random.fold_in(key, 1000), self.seq.observation(0))
-        jax.block_until_ready(state.particles)
-        out = []
-        for t in range(len(self.seq.frames)):
-            t0 = time.perf_counter()
-            obs = self.seq.observation(t)
-            state, _info = step(jax.random.fold_in(key, t), state, obs)
-            jax.block_until_ready(state.particles)
-            out.append(time.perf_counter() - t0)
-        return out
+    def frames(self, config: tuple[int, int], seed: int = 0) -> float:
+        """Seconds per frame, median over the frames: host maps of frame ``t`` + the compiled filter step."""
+        return self.trackers[config].run(seed).per_frame
 
 
 def run(rounds: int, particles: int, repeats: int, log=print) -> list[dict]:
@@ -128,7 +103,7 @@ def run(rounds: int, particles: int, repeats: int, log=print) -> list[dict]:
         for model in bt.MODELS:
             jobs[f"tracker {n} × {ly} s/frame, bodytrack {model}"] = (
                 lambda n=n, ly=ly, m=model: float(np.median(bt.bodytrack_frames(n, ly, model=m))),
-                lambda c=(n, ly): float(np.median(jm.frames(c))),
+                lambda c=(n, ly): jm.frames(c),
             )
     return bt.side_by_side(jobs, rounds, log)
 

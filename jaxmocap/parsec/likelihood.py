@@ -83,20 +83,24 @@ class Config:
     Attributes:
       image_size: ``(W, H)`` of every camera image.
       edge_step, inside_hstep, inside_vstep: sampling steps in pixels (bodytrack: 5, 10, 10).
-      chunk: edge samples per lane taken by one iteration of the edge loop.
+      chunk: edge samples per lane taken by one iteration of the edge loop; one number, or one per group. The loop
+        runs until the longest side of the batch is done, so a group whose sides have at most ``k`` samples
+        wastes least with ``k`` a multiple of its chunk. The default fits sequenceB_2 (at most 24, 12, 16, 16, 9
+        and 12 samples a side around the initial pose: 1184 edge slots per particle, 1344 with 8 for all); the
+        values do not depend on it.
       groups: parts sampled together by one loop (similar projected sizes keep the masked work small).
       inside_cols: per group, the samples of a row taken as one block (a row of ``n2`` samples takes
         ``ceil(n2 / inside_cols)`` blocks; bodytrack's rows have at least 4, the torso's about 6 here).
       inside_rows: blocks per lane taken by one iteration of the inside loop.
 
-    Groups of the same size and ``inside_cols`` share one compiled loop, scanned over them.
+    Groups of the same size, ``chunk`` and ``inside_cols`` share one compiled loop, scanned over them.
     """
 
     image_size: tuple[int, int] = (640, 480)
     edge_step: float = 5.0
     inside_hstep: float = 10.0
     inside_vstep: float = 10.0
-    chunk: int = 8
+    chunk: int | tuple[int, ...] = (12, 12, 8, 8, 6, 6)
     groups: tuple[tuple[int, ...], ...] = ((0,), (9,), (1, 3), (2, 4), (5, 7), (6, 8))
     inside_cols: tuple[int, ...] = (6, 6, 4, 4, 4, 4)
     inside_rows: int = 2
@@ -107,10 +111,17 @@ class Config:
             raise ValueError("groups must list every part 0..9 exactly once")
         if len(self.inside_cols) != len(self.groups):
             raise ValueError("inside_cols needs one entry per group")
-        if min(self.chunk, self.inside_rows, *self.inside_cols) < 1:
+        if len(self.chunks) != len(self.groups):
+            raise ValueError("chunk needs one entry per group (or one number)")
+        if min(*self.chunks, self.inside_rows, *self.inside_cols) < 1:
             raise ValueError("chunk sizes must be positive")
         if (self.max_rows_n + 1) * self.max_cols_n >= 65536:
             raise ValueError("image too large for the inside sample counters; use larger inside steps")
+
+    @property
+    def chunks(self) -> tuple[int, ...]:
+        """The edge chunk of every group."""
+        return (self.chunk,) * len(self.groups) if isinstance(self.chunk, int) else tuple(self.chunk)
 
     @property
     def diagonal(self) -> float:
@@ -275,12 +286,13 @@ def _count(length: jnp.ndarray, step: float, cap: int) -> tuple[jnp.ndarray, jnp
 
 def _index(x, y, offset, W: int, H: int, active):
     """Flat pixel index (int32) and counted mask of samples ``(x, y)`` (float32): ``int(x + 0.5)`` truncates
-    toward 0, so a sample counts iff ``−1 < x + 0.5 < W`` and ``−1 < y + 0.5 < H``."""
-    xs = x + 0.5
-    ys = y + 0.5
-    m = active & (xs > -1.0) & (xs < W) & (ys > -1.0) & (ys < H)
-    idx = offset + jnp.floor(jnp.maximum(ys, 0.0)) * W + jnp.floor(jnp.maximum(xs, 0.0))
-    return jnp.where(m, idx, 0.0).astype(jnp.int32), m
+    toward 0, so a sample counts iff ``−1 < x + 0.5 < W`` and ``−1 < y + 0.5 < H``, that is iff the truncated
+    column and row lie in ``[0, W)`` and ``[0, H)``: one unsigned comparison each (a negative one wraps to a huge
+    unsigned value; a float out of the int32 range converts to the minimum or maximum int32, outside too)."""
+    xi = (x + 0.5).astype(jnp.int32)
+    yi = (y + 0.5).astype(jnp.int32)
+    m = active & (xi.astype(jnp.uint32) < W) & (yi.astype(jnp.uint32) < H)
+    return jnp.where(m, offset.astype(jnp.int32) + yi * W + xi, 0), m
 
 
 def _gather(flat, idx_masks):
@@ -290,8 +302,9 @@ def _gather(flat, idx_masks):
     return [(jnp.take(flat, i, mode="fill"), m) for i, m in idx_masks]
 
 
-def _edge_group(uv, flat_edge, config: Config, W: int, H: int):
-    """Edge term of one part group: ``uv (V, g, 4, 2, *B)`` float32 → per-lane SSD and counts ``(V, g, 2, *B)``."""
+def _edge_group(uv, flat_edge, config: Config, W: int, H: int, C: int):
+    """Edge term of one part group: ``uv (V, g, 4, 2, *B)`` float32 → per-lane SSD and counts ``(V, g, 2, *B)``;
+    ``C`` samples per lane and loop iteration."""
     V = uv.shape[0]
     nb = uv.ndim - 4
     p = jnp.stack([uv[:, :, 0], uv[:, :, 2]], 2)  # (V, g, 2 sides, 2 xy, *B): sides P0→P1 and P2→P3
@@ -304,7 +317,6 @@ def _edge_group(uv, flat_edge, config: Config, W: int, H: int):
     count = jnp.where(finite, n + 1.0, 0.0)
     offset = jnp.broadcast_to(_trail(jnp.arange(V, dtype=uv.dtype) * (W * H), nb + 2), px.shape)
     offset = offset + jnp.zeros_like(px)  # a full array: no broadcast inside the loop
-    C = config.chunk
 
     # one uint32 accumulator per lane, SSD in the high bits and the sample count in the low 8 bits, when a side
     # has at most 255 samples (640×480: 161); two int32 accumulators otherwise
@@ -404,7 +416,8 @@ def _inside_group(uv, flat_fg, config: Config, W: int, H: int, C2: int):
 
 def _group_sums(uv: jnp.ndarray, obs: Observation, config: Config):
     """Per part: edge SSD and counts ``(10, V, 2, *B)`` (two sides), background and inside counts ``(10, V,
-    *B)``. Groups of equal size and ``inside_cols`` run in one compiled loop per term, scanned over them."""
+    *B)``. Groups of equal size, ``chunk`` and ``inside_cols`` run in one compiled loop per term, scanned over
+    them."""
     uv = jnp.asarray(uv, jnp.float32)
     V, H, W = obs.edge.shape
     if (W, H) != tuple(config.image_size):
@@ -413,15 +426,15 @@ def _group_sums(uv: jnp.ndarray, obs: Observation, config: Config):
     flat_edge = edge.reshape(-1)
     flat_fg = obs.fg.reshape(-1)
     buckets: dict[tuple[int, int], list] = {}
-    for g, c2 in zip(config.groups, config.inside_cols, strict=True):
-        buckets.setdefault((len(g), c2), []).append(g)
+    for g, c, c2 in zip(config.groups, config.chunks, config.inside_cols, strict=True):
+        buckets.setdefault((len(g), c, c2), []).append(g)
     per_part = [None] * NUM_PARTS
-    for (_, c2), groups in buckets.items():
+    for (_, c, c2), groups in buckets.items():
         stacked = jnp.stack([uv[:, np.asarray(g)] for g in groups])  # (G, V, g, 4, 2, *B)
 
-        def one(_, u, c2=c2):
+        def one(_, u, c=c, c2=c2):
             return None, (
-                *_edge_group(u, flat_edge, config, W, H),
+                *_edge_group(u, flat_edge, config, W, H, c),
                 *_inside_group(u, flat_fg, config, W, H, c2),
             )
 

@@ -415,6 +415,21 @@ def test_sampling_closed_form(corners_fn, edge_step):
     assert ne[0, 0] == k and ni[0, 0] == 33  # the P0→P1 side and the x0 column are out
 
 
+def test_edge_chunks_change_the_work_not_the_sums(pdata, corners_fn, probe_corners):
+    """The edge loop's samples per iteration (one for all groups, or one per group, the default) change only how
+    many masked slots are visited: the per-part sums of the probe states are equal to the integer."""
+    obs = _obs(pdata, 0)
+    configs = [pl.Config(chunk=8), pl.Config(), pl.Config(chunk=(5, 3, 7, 16, 1, 2))]
+    for uv in probe_corners:
+        sums = [[np.asarray(a) for a in corners_fn(uv, obs, config=c)] for c in configs]
+        assert sums[0][1].sum() > 800  # edge samples in the images
+        for other in sums[1:]:
+            for a, b in zip(sums[0], other, strict=True):
+                np.testing.assert_array_equal(a, b)
+    with pytest.raises(ValueError, match="chunk needs one entry per group"):
+        pl.Config(chunk=(8, 8))
+
+
 def test_intersecting_parts_are_invalid(pdata, loglik_fn):
     """bodytrack's sphere test: the left forearm folded into the torso is rejected with −1e10."""
     shape = pdata["shape"]
