@@ -497,6 +497,7 @@ def _write(path, data: BvhData, precision: int) -> None:
         raise ValueError("the joints do not form one tree")
     cols = np.concatenate([np.arange(starts[j], starts[j + 1]) for j in order]).astype(np.int64)
     out += ["MOTION", f"Frames: {frames.shape[0]}", f"Frame Time: {data.frame_time:.10g}"]
-    out += [" ".join(fmt(v) for v in row) for row in frames[:, cols]]
+    row_format = " ".join([f"%.{precision}f"] * len(cols))  # one format per row (the same text as fmt)
+    out += [row_format % tuple(row) for row in frames[:, cols].tolist()]
     with open(path, "w", encoding="utf-8", newline="\n") as f:
         f.write("\n".join(out) + "\n")

@@ -141,8 +141,16 @@ def trc_text(
         "Frame#\tTime\t" + "\t\t\t".join(names) + "\t\t",
         "\t\t" + "\t".join(f"X{i + 1}\tY{i + 1}\tZ{i + 1}" for i in range(M)),
     ]
-    for f, row in zip(frames, P.reshape(T, 3 * M), strict=True):
-        lines.append("\t".join([str(int(f) + 1), f"{f / fps:.10g}", *(_num(v) for v in row)]))
+    rows = P.reshape(T, 3 * M)
+    whole = np.all(np.isfinite(rows), axis=1)
+    row_format = "\t".join(
+        ["%d", "%.10g"] + ["%.10g"] * (3 * M)
+    )  # one format per row (as _num writes a number)
+    for f, row, ok in zip(frames.tolist(), rows.tolist(), whole.tolist(), strict=True):
+        if ok:
+            lines.append(row_format % (f + 1, f / fps, *row))
+        else:
+            lines.append("\t".join([str(f + 1), f"{f / fps:.10g}", *(_num(v) for v in row)]))
     return "\n".join(lines) + "\n"
 
 

@@ -37,6 +37,7 @@ __all__ = [
     "POSES_TRC",
     "check_export_options",
     "export_track",
+    "preload",
     "lost_frames",
 ]
 
@@ -58,6 +59,17 @@ def check_export_options(smooth: str | None, bvh_units: str, fps: float) -> floa
 def lost_frames(records: Sequence[Mapping]) -> set[int]:
     """Frames whose diagnostics record says the track was lost there."""
     return {int(r["frame"]) for r in records if r.get("lost")}
+
+
+def preload(smooth: bool = True, plots: bool = True) -> None:
+    """Import what :func:`export_track` will need (SciPy's signal package for the smoothing, Matplotlib for the
+    plots: together about 2 s of a run's end, a few per cent of a long run) — called in a thread of its own while
+    the frames are tracked."""
+    if smooth:
+        import scipy.signal  # noqa: F401
+    if plots:
+        import matplotlib.figure  # noqa: F401
+        from matplotlib.backends import backend_agg  # noqa: F401
 
 
 def export_track(
