@@ -497,7 +497,7 @@ class DiagnosticsWriter:
         if summary is not None:
             doc["summary"] = _jsonable(summary)
         with self._throttle.timing():
-            atomic_write_text(self.out / DIAGNOSTICS_JSON, json.dumps(doc, indent=1, sort_keys=True) + "\n")
+            atomic_write_text(self.out / DIAGNOSTICS_JSON, _json_with_records(doc, "frames"))
 
     def close(self, summary: Mapping | None = None) -> None:
         self.write_json(summary)
@@ -520,3 +520,18 @@ def _jsonable(x):
     if isinstance(x, pathlib.PurePath):
         return os.fspath(x)
     return x
+
+
+def _json_with_records(doc: Mapping, key: str) -> str:
+    """``doc`` as JSON text, its keys sorted: the list ``doc[key]`` one compact record per line, every other entry
+    indented. The same document as ``json.dumps(doc, indent=1, sort_keys=True)``, written by the json module's C
+    encoder record by record (the indenting encoder is pure Python: 0.8 s for 3000 frames of diagnostics)."""
+    parts = []
+    for k in sorted(doc):
+        if k == key:
+            rows = ",\n".join(json.dumps(r, sort_keys=True) for r in doc[k])
+            value = f"[\n{rows}\n]" if rows else "[]"
+        else:
+            value = json.dumps(doc[k], indent=1, sort_keys=True).replace("\n", "\n ")
+        parts.append(f" {json.dumps(k)}: {value}")
+    return "{\n" + ",\n".join(parts) + "\n}\n"

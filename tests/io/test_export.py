@@ -165,3 +165,19 @@ def test_throttle_keeps_rewrites_to_a_hundredth_of_the_time(monkeypatch):
     clock[0] += 0.2
     assert th.due()
     assert export.Throttle(0.0).due()
+
+
+def test_diagnostics_text_is_the_document_json_writes():
+    """The diagnostics file's layout (one record per line) holds the document the json module writes indented."""
+    import json
+
+    doc = {
+        "run": {"options": {"seed": 0, "cues": ["foreground", "depth"]}, "name": "x"},
+        "frames": [{"frame": i, "layers": [{"beta": 0.1 * i}], "lost": i == 2} for i in range(5)],
+        "summary": {"frames_tracked": 5},
+    }
+    for d in (doc, {**doc, "frames": []}):
+        text = export._json_with_records(d, "frames")
+        assert json.loads(text) == json.loads(json.dumps(d, indent=1, sort_keys=True))
+        lines = text.splitlines()
+        assert all(json.dumps(r, sort_keys=True) in lines for r in d["frames"])
