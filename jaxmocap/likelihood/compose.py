@@ -669,7 +669,7 @@ class Likelihood:
             elif kind == "template":
                 # the colours are read exactly as the cue reads them (nearest 8-bit colour, or bilinear), so that
                 # the energy at (x0, obs0) is 0
-                g0 = self.geometry(x0, (H, W))
+                g0 = jax.jit(lambda lik, x: lik.geometry(x, (H, W)))(self, x0)
                 ctx = self._context(c, cues._prepare_colour(obs0, ctx, {}))
                 rgb, inside = cues._surface_rgb(obs0, g0, ctx)
                 T = jnp.stack(rgb)  # (3, V, P)

@@ -168,14 +168,14 @@ def partition_layout(preset: Preset | None, model, filter_name: str):
     if preset is None or not preset.partitions or filter_name not in PARTITIONED:
         return None, None
     names = model.segment_names
+    missing = [s for p in preset.partitions for s in p.segments if s not in names]
+    if missing:
+        raise ValueError(
+            f"preset {preset.name!r} partitions the {preset.model} body; {model.name} has no "
+            f"{', '.join(missing)} (use --model {preset.model})"
+        )
     groups, parts = [], []
     for p in preset.partitions:
-        missing = [s for s in p.segments if s not in names]
-        if missing:
-            raise ValueError(
-                f"preset {preset.name!r} partitions the {preset.model} body; {model.name} has no "
-                f"{', '.join(missing)} (use --model {preset.model})"
-            )
         dofs = tuple(d for s in p.segments for d in model.topology.segment_dofs[names.index(s)])
         if not dofs:
             raise ValueError(f"partition {p.name!r} of preset {preset.name!r} has no DOF on {model.name}")
