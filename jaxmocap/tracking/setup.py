@@ -332,6 +332,16 @@ class TrackSetup:
     def needs_references(self) -> bool:
         return self.likelihood.needs_references
 
+    def quality(self, loglik_max: np.ndarray) -> float:
+        """The frame's ``q_t`` (:mod:`jaxmocap.tracking.loop`) from the step's best log-likelihood per layer
+        (``(K, L)`` for a partitioned filter): the last layer's, or with a likelihood restricted to each
+        partition's body parts the sum of every partition's last-layer best (each partition alone weighs only
+        its own parts)."""
+        top = np.asarray(loglik_max, np.float64)
+        if self.parts is not None and self.likelihood.partition_weights is not None:
+            return float(-np.sum(top.reshape(top.shape[0], -1)[:, -1]))
+        return float(-top.reshape(-1)[-1])
+
     # -- filter -------------------------------------------------------------------------------------------------
 
     def make_filter(self, x0: np.ndarray):

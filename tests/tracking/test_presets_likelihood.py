@@ -73,6 +73,9 @@ def test_ten_partitions_in_the_papers_order_with_their_dofs(setup_obs):
     # the cues of eq. 1-3 and the ground distance, each weighed as 100^(-d) (lambda = ln 100)
     assert [n for n, _ in setup.cues] == ["depth", "edge_fraction", "colour_template", "ground"]
     np.testing.assert_allclose(np.asarray(setup.likelihood.schedule), LN_A, rtol=1e-6)
+    # track loss watches the whole body: the partitions' best energies summed (each weighs its own parts)
+    top = -np.arange(1.0, 11.0)[:, None]  # (K, L) best log-likelihoods of a step
+    assert setup.quality(top) == pytest.approx(55.0)
 
 
 def test_depth_and_edge_energies_of_a_partition_are_means_over_its_own_samples(setup_obs, energies):
