@@ -1,4 +1,4 @@
-"""A likelihood restricted to the body parts of one partition, by data (Li & Kulić §III: each partition of the
+"""A likelihood restricted to the body parts of one partition, by data (Li & Kulić: each partition of the
 partitioned filter is weighed with the cues of its own body parts).
 
 A partitioned likelihood is built from a ``(K, S)`` table ``A`` of per-partition, per-segment weights (1 for a
@@ -15,8 +15,9 @@ every partition) reads one row per sample set (:func:`part_weights`):
 
 A cue that honours the weights (``CueSpec.partial``: foreground, edges, edge distance and fraction, depth,
 colour template, keypoints, wrist bands, ground) replaces its mean over samples by the weighted mean
-``Σ_p a_p e_p / Σ_p a_p`` (Li & Kulić eq. 1–3: sums over "the body parts in this partition"); the others are
-evaluated over the whole body in every partition. Without a table the cues run unchanged.
+``Σ_p a_p e_p / Σ_p a_p`` (Li & Kulić eq. 1–3: sums over "the body parts in this partition"), and a joint cue
+multiplies each joint's term by its weight (the ground term of a partition without an ankle is 0); the others
+are evaluated over the whole body in every partition. Without a table the cues run unchanged.
 """
 
 from __future__ import annotations
