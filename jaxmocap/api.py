@@ -68,11 +68,14 @@ class TrackResult:
 
 
 def run_options(values: Mapping):
-    """The :class:`~jaxmocap.tracking.options.TrackOptions` of ``values`` (option names; other keys ignored)."""
+    """The :class:`~jaxmocap.tracking.options.TrackOptions` of ``values`` (option names; other keys ignored), with
+    the options of the preset ``values["preset"]`` (:mod:`jaxmocap.tracking.presets`) under those given."""
     from jaxmocap.tracking.options import TrackOptions
+    from jaxmocap.tracking.presets import apply
 
     names = {f.name for f in dataclasses.fields(TrackOptions)}
-    return TrackOptions(**{k: v for k, v in values.items() if k in names and v is not None})
+    given = apply({k: v for k, v in values.items() if k in names and v is not None})
+    return TrackOptions(**given)
 
 
 def open_source(
@@ -193,7 +196,7 @@ def track(
     Input: ``videos`` (one per camera, synchronised) with ``calibration`` and optional ``keypoints`` / ``depth``
     folders (one per camera), or ``input``: a Pose2Sim project folder or a sequence folder. ``options``: the fields
     of :class:`jaxmocap.tracking.options.TrackOptions` (``filter``, ``particles``, ``seed``, ``cues``, ``frames``,
-    ``keypoint_layout``, ``calibration_units`` …). ``config``: a configuration file
+    ``keypoint_layout``, ``calibration_units``, ``preset`` …; a preset's values lie under the others). ``config``: a configuration file
     (:func:`jaxmocap.tracking.options.load_config`) whose values the arguments given here override. ``out``: keep
     the outputs there (else a temporary folder, removed); ``quiet``: no progress line; ``cache``: the persistent
     compilation cache. Bad input raises :class:`jaxmocap.errors.MocapInputError` (or ``ValueError`` for a bad

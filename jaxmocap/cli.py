@@ -26,6 +26,7 @@ import sys
 
 from jaxmocap import __version__, choices
 from jaxmocap.errors import MocapInputError
+from jaxmocap.tracking import presets
 from jaxmocap.tracking.smoothing import DEFAULT_CUTOFF_HZ
 
 
@@ -522,6 +523,7 @@ def _add_sweep_command(sub) -> None:
 
 # the choices of a tracking run (jaxmocap.choices does not import JAX: building the parser stays fast)
 _MODELS, _FILTERS, _FOREGROUNDS = choices.MODELS, choices.FILTERS, choices.FOREGROUNDS
+_PRESETS = presets.PRESETS
 _LAYOUTS = choices.KEYPOINT_LAYOUTS
 
 
@@ -576,6 +578,12 @@ def _add_tracking_commands(sub) -> None:
     )
     tr.add_argument(
         "--depth", nargs="+", metavar="DIR", help="depth-map folder per camera: .npy metres or 16-bit PNG mm"
+    )
+    tr.add_argument(
+        "--preset",
+        choices=tuple(_PRESETS),
+        help="a paper's tracker: li-kulic (Li & Kulic's ten-partition filter on full25); options given here or "
+        "in --config override the preset's (README: Presets)",
     )
     tr.add_argument("--model", choices=_MODELS, help="body model (default: the body file's, else full25)")
     tr.add_argument("--filter", choices=_FILTERS, help="particle filter (default apf)")

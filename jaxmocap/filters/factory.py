@@ -61,24 +61,27 @@ def partition_groups(model: body_mod.BodyModel) -> tuple[tuple[int, ...], ...]:
 
 
 def partition_counts(
-    model: body_mod.BodyModel, filter_name: str, num_particles: int | Sequence[int]
+    model: body_mod.BodyModel,
+    filter_name: str,
+    num_particles: int | Sequence[int],
+    groups: Sequence[Sequence[int]] | None = None,
 ) -> tuple[int, ...] | int:
     """Particle counts of ``filter_name``: for partitioned / hierarchical sampling one count per group of
-    :func:`partition_groups` (an int is used for every group), else the int itself. Raises ``ValueError`` for a
-    sequence given to another filter, a sequence of the wrong length, or a count below 2."""
+    ``groups`` (default :func:`partition_groups`; an int is used for every group), else the int itself. Raises
+    ``ValueError`` for a sequence given to another filter, a sequence of the wrong length, or a count below 2."""
+    groups = partition_groups(model) if groups is None else tuple(tuple(g) for g in groups)
     if isinstance(num_particles, (int, np.integer)):
         n = int(num_particles)
         if n < 2:
             raise ValueError("--particles must be at least 2")
         if filter_name not in PARTITIONED:
             return n
-        return (n,) * len(partition_groups(model))
+        return (n,) * len(groups)
     counts = tuple(int(c) for c in num_particles)
     if filter_name not in PARTITIONED:
         raise ValueError(
             f"one particle count per partition is for the partitioned / hierarchical filters, not {filter_name!r}"
         )
-    groups = partition_groups(model)
     if len(counts) != len(groups):
         names = ", ".join(_group_label(model, g) for g in groups)
         raise ValueError(
@@ -118,6 +121,7 @@ def make_filter(
     prior_mean: np.ndarray,
     prior_std: np.ndarray,
     survival_target: float = 0.5,
+    groups: Sequence[Sequence[int]] | None = None,
 ):
     """Filter ``name`` (:data:`FILTERS`) on ``loglik(X, observation, layer) -> (N,)``.
 
@@ -126,7 +130,8 @@ def make_filter(
     :func:`jaxmocap.filters.annealing.corrected_beta`). ``fbapf*`` differ from ``apf`` only in the likelihood's per-layer
     cue weights (built by the caller). ``icondensation`` / ``iapf`` draw part of their particles around
     ``observation.centre`` (when ``observation.valid``) and from the prior ``N(prior_mean, prior_std²)``.
-    ``partitioned`` / ``hierarchical`` split the DOFs by :func:`partition_groups`; ``num_particles`` is one count
+    ``partitioned`` / ``hierarchical`` split the DOFs by ``groups`` (default :func:`partition_groups`; a preset's
+    partitions, :mod:`jaxmocap.tracking.presets`) in that order; ``num_particles`` is one count
     for every partition or a sequence of one count per partition (Li & Kulić on ``full25``: torso 1000, head 200,
     each arm and leg 350; the other filters take an int). ``hybrid`` is the APF with
     gradient moves (:data:`HYBRID_MOVE`) and ``apf-refine`` the APF whose estimate is refined by gradient ascent
@@ -134,7 +139,8 @@ def make_filter(
     """
     if name not in FILTERS:
         raise ValueError(f"unknown filter {name!r}; choose one of {', '.join(FILTERS)}")
-    counts = partition_counts(model, name, num_particles)
+    counts = partition_counts(model, name, num_particles, groups)
+    groups = partition_groups(model) if groups is None else tuple(tuple(int(i) for i in g) for g in groups)
     dt = model.offset.dtype
     std = jnp.asarray(std, dt)
     span = np.asarray(model.upper) - np.asarray(model.lower)
@@ -159,10 +165,8 @@ def make_filter(
     # jaxmocap.filters.partitioned): full25 with Li & Kulić's counts compiles in a third of the CPU time of the
     # unrolled step, at no loss of step time (benchmarks/results/compile_time.md)
     if name == "partitioned":
-        groups = partition_groups(model)
         return Partitioned(loglik, std, groups, counts, scan_partitions=True, **common)
     if name == "hierarchical":
-        groups = partition_groups(model)
         sched = Schedule.deutscher(L, survival_target, diffusion_scales=scales)
         return hierarchical(loglik, std, groups, counts, sched, scan_partitions=True, **common)
     if name == "m-apf":

@@ -316,6 +316,8 @@ def colour_template(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarr
     T, valid = ctx.ref  # (3, V, P), (V, P)
     rgb, inside = _surface_rgb(obs, g, ctx)
     m = (valid & g.surface_facing & inside).astype(rgb[0].dtype)
+    if ctx.part is not None:  # a partition's own body parts (jaxmocap.likelihood.partition)
+        m = m * ctx.part.surface.astype(m.dtype)
     d2 = sum((rgb[c] - T[c]) ** 2 for c in range(3))
     d = jnp.sqrt(d2 + 1e-12) * (1.0 / math.sqrt(3.0))
     return _weighted_mean(d, m, empty=1.0)

@@ -50,6 +50,7 @@ import numpy as np
 from jaxmocap.features.observation import Observation
 from jaxmocap.geometry import body, camera, flesh, kinematics
 from jaxmocap.likelihood import cues, maps
+from jaxmocap.likelihood import partition as part_mod
 
 #: Li & Kulić's base A of ``w = A^(−d)`` (eq. 4): weight ``k`` on a [0, 1] energy is ``λ = k ln A``.
 LI_KULIC_BASE = 100.0
@@ -97,7 +98,8 @@ class Likelihood:
 
     Leaves: ``model``, ``rig``, ``surface`` (flesh points), ``view_weights (V,)``, ``schedule (L, C, V)``,
     ``cue_weights (C,)`` (``k_c``; :meth:`create` copies the weights of ``cues``), ``references`` (per cue: None or the reference
-    arrays of :meth:`with_references`).
+    arrays of :meth:`with_references`), ``partition_weights`` (None, or the per-sample tables of
+    :meth:`with_partitions`: at partition ``k`` the cues that honour them weigh only its body parts).
     Static: ``cues`` (tuple of :class:`Cue`: names and parameters), ``contour_points`` (per silhouette line),
     ``chunk_size``. A likelihood that differs from another only in its leaves (weights, λ, references) is the same
     program under ``jit``: ``dataclasses.replace(lik, cue_weights=..., schedule=...)`` does not recompile.
@@ -110,6 +112,7 @@ class Likelihood:
     schedule: jnp.ndarray
     references: tuple = ()
     cue_weights: jnp.ndarray | None = None
+    partition_weights: part_mod.PartWeights | None = None
     cues: tuple = dataclasses.field(metadata=dict(static=True), default=())
     contour_points: int = dataclasses.field(metadata=dict(static=True), default=8)
     chunk_size: int = dataclasses.field(metadata=dict(static=True), default=128)
@@ -202,12 +205,34 @@ class Likelihood:
         """Indices of the cues composed as terms of their own after the table (module docstring, step 4)."""
         return tuple(c for c, cue in enumerate(self.cues) if cue.spec.separate)
 
-    def _context(self, c: int, aux=None) -> cues.CueContext:
+    def _context(self, c: int, aux=None, part=None) -> cues.CueContext:
         cue = self.cues[c]
         ref = self.references[c] if self.references else None
+        part = part if cue.spec.partial else None
         return cues.CueContext(
-            self.model.joint_names, cue.param_dict, self.rig, self.model, self.surface.segment, aux, ref
+            self.model.joint_names, cue.param_dict, self.rig, self.model, self.surface.segment, aux, ref, part
         )
+
+    def with_partitions(self, parts) -> Likelihood:
+        """The same likelihood weighing, at partition ``k`` (``batch(..., partition=k)``, or the ``partition`` of
+        the filter's :class:`~jaxmocap.filters.base.Layer`), only the body parts ``parts[k]`` (segment names or
+        indices) in the cues that honour it (:mod:`jaxmocap.likelihood.partition`); ``parts=None`` removes it.
+        The table is data: a likelihood of other partitions is the same compiled program."""
+        if parts is None:
+            return dataclasses.replace(self, partition_weights=None)
+        table = part_mod.segment_table(self.model, parts)
+        tables = part_mod.sample_tables(self.model, table, self.surface.segment, self.contour_points)
+        dt = self.model.offset.dtype
+        return dataclasses.replace(
+            self, partition_weights=part_mod.PartWeights(*(jnp.asarray(t, dt) for t in tables))
+        )
+
+    def _part(self, partition):
+        """The :class:`~jaxmocap.likelihood.cue_context.PartWeights` of ``partition`` (default 0), or None
+        without a partition table."""
+        if self.partition_weights is None:
+            return None
+        return part_mod.part_weights(self.partition_weights, 0 if partition is None else partition)
 
     @property
     def needs_references(self) -> bool:
@@ -397,10 +422,14 @@ class Likelihood:
             out.append(None if p is None else p(obs, self._context(c), cache))
         return tuple(out)
 
-    def view_energies(self, x: jnp.ndarray, obs: Observation, aux: tuple | None = None) -> jnp.ndarray:
+    def view_energies(
+        self, x: jnp.ndarray, obs: Observation, aux: tuple | None = None, partition=None
+    ) -> jnp.ndarray:
         """``(C, V)`` weighted cue energies ``k_c w_v E_c,v`` of one particle (before the schedule); a view-free
-        cue has ``k_c E_c`` in column 0 and zeros elsewhere. ``aux``: :meth:`prepare` (computed here if None)."""
-        return self._energies_from_pose(self.pose_stage(x), obs, self.prepare(obs) if aux is None else aux)
+        cue has ``k_c E_c`` in column 0 and zeros elsewhere. ``aux``: :meth:`prepare` (computed here if None);
+        ``partition``: that partition's body parts (:meth:`with_partitions`)."""
+        aux = self.prepare(obs) if aux is None else aux
+        return self._energies_from_pose(self.pose_stage(x), obs, aux, part=self._part(partition))
 
     def _energies_from_pose(
         self,
@@ -409,9 +438,11 @@ class Likelihood:
         aux: tuple,
         which: Sequence[int] | None = None,
         by_runs: bool = True,
+        part=None,
     ) -> jnp.ndarray:
         """``(len(which), V)`` rows of :meth:`view_energies` for the cues ``which`` (default all), from a
-        :meth:`pose_stage` that has what they need (``by_runs``: :meth:`_surface_geometry`)."""
+        :meth:`pose_stage` that has what they need (``by_runs``: :meth:`_surface_geometry`; ``part``: a
+        partition's :class:`~jaxmocap.likelihood.cue_context.PartWeights`)."""
         if (
             self.cue_weights is None
         ):  # the cues' own weights are not part of the structure (Cue: compare=False)
@@ -422,7 +453,7 @@ class Likelihood:
         rows = []
         for c in which:
             cue = self.cues[c]
-            e = cue.spec.energy(g, obs, self._context(c, aux[c]))
+            e = cue.spec.energy(g, obs, self._context(c, aux[c], part))
             k = self.cue_weights[c]
             if cue.spec.per_view:
                 rows.append(k * self.view_weights * e)
@@ -430,9 +461,11 @@ class Likelihood:
                 rows.append(jnp.zeros((V,), e.dtype).at[0].set(k * e))
         return jnp.stack(rows)
 
-    def energies(self, x: jnp.ndarray, obs: Observation, aux: tuple | None = None) -> jnp.ndarray:
+    def energies(
+        self, x: jnp.ndarray, obs: Observation, aux: tuple | None = None, partition=None
+    ) -> jnp.ndarray:
         """``(C,)`` view-weighted cue energies ``k_c Σ_v w_v E_c,v`` of one particle (before the schedule)."""
-        return jnp.sum(self.view_energies(x, obs, aux), axis=-1)
+        return jnp.sum(self.view_energies(x, obs, aux, partition), axis=-1)
 
     def layer_lambda(self, layer=0) -> jnp.ndarray:
         """``(C, V)`` λ of annealing layer ``layer``: an int (traced or static) or the
@@ -456,14 +489,21 @@ class Likelihood:
         return schedule[self._layer_index(layer)]
 
     def _table_loglik(
-        self, pose: dict, obs: Observation, aux: tuple, lam_table: jnp.ndarray, by_runs: bool = True
+        self,
+        pose: dict,
+        obs: Observation,
+        aux: tuple,
+        lam_table: jnp.ndarray,
+        by_runs: bool = True,
+        part=None,
     ) -> jnp.ndarray:
         """``−Σ_c Σ_v λ_c,v k_c w_v E_c,v`` over the cues of the table, of one particle's :meth:`pose_stage` (with
         what those cues need) and their λ (:meth:`_table_lambda`)."""
-        return -jnp.sum(lam_table * self._energies_from_pose(pose, obs, aux, self._table_cues(), by_runs))
+        e = self._energies_from_pose(pose, obs, aux, self._table_cues(), by_runs, part)
+        return -jnp.sum(lam_table * e)
 
     def _separate_energy(
-        self, c: int, x: jnp.ndarray, obs: Observation, aux: tuple, pose: dict | None = None
+        self, c: int, x: jnp.ndarray, obs: Observation, aux: tuple, pose: dict | None = None, part=None
     ) -> jnp.ndarray:
         """``Σ_v w_v E_c,v`` of the separate cue ``c`` at one particle ``x (D,)``, from the geometry it reads
         alone (``pose``: a :meth:`pose_stage` of ``x`` with what the cue needs, computed here if None)."""
@@ -471,7 +511,7 @@ class Likelihood:
         needs = self._needs((c,))
         pose = self.pose_stage(x, needs) if pose is None else pose
         g = self.geometry_from_pose(pose, obs.image_shape, needs)
-        e = cue.spec.energy(g, obs, self._context(c, aux[c]))
+        e = cue.spec.energy(g, obs, self._context(c, aux[c], part))
         return jnp.sum(self.view_weights * e) if cue.spec.per_view else e
 
     def _separate_weight(self, c: int, layer) -> jnp.ndarray:
@@ -480,39 +520,53 @@ class Likelihood:
         return (self.schedule[:, c, 0] * self.cue_weights[c])[self._layer_index(layer)]
 
     def log_likelihood(
-        self, x: jnp.ndarray, obs: Observation, layer=0, aux: tuple | None = None, *, by_runs: bool = True
+        self,
+        x: jnp.ndarray,
+        obs: Observation,
+        layer=0,
+        aux: tuple | None = None,
+        *,
+        by_runs: bool = True,
+        partition=None,
     ) -> jnp.ndarray:
         """Scalar ``log p_l(z | x)`` of one particle at annealing layer ``layer`` (see :meth:`layer_lambda`), composed
         as :meth:`batch` composes it, from one :meth:`pose_stage` with what every cue needs (one forward kinematics,
-        and one reverse pass through it when differentiated); ``by_runs``: :meth:`_surface_geometry`."""
+        and one reverse pass through it when differentiated); ``by_runs``: :meth:`_surface_geometry`;
+        ``partition``: as in :meth:`batch`."""
         aux = self.prepare(obs) if aux is None else aux
+        part = self._part(_partition_of(layer, partition))
         table = self._table_cues()
         pose = self.pose_stage(x)
-        ll = self._table_loglik(pose, obs, aux, self._table_lambda(layer), by_runs) if table else 0.0
+        ll = self._table_loglik(pose, obs, aux, self._table_lambda(layer), by_runs, part) if table else 0.0
         for c in self._separate_cues():
-            ll = ll - self._separate_weight(c, layer) * self._separate_energy(c, x, obs, aux, pose)
+            ll = ll - self._separate_weight(c, layer) * self._separate_energy(c, x, obs, aux, pose, part)
         return ll
 
-    def batch(self, X: jnp.ndarray, obs: Observation, layer=0) -> jnp.ndarray:
+    def batch(self, X: jnp.ndarray, obs: Observation, layer=0, partition=None) -> jnp.ndarray:
         """``(N,)`` log-likelihoods of particles ``X (N, D)``; non-finite values become −inf.
 
         The observation-only work is done once; particles go through the λ table in chunks of ``chunk_size``
         (padded with copies of the first particle, whose results are dropped), then the separate cues are
-        subtracted (module docstring).
+        subtracted (module docstring). ``partition`` (default: ``layer.partition`` of a filter's
+        :class:`~jaxmocap.filters.base.Layer`, else 0; an int or traced int32): with a partition table
+        (:meth:`with_partitions`) the cues weigh that partition's body parts; ignored without one.
         """
         aux = self.prepare(obs)
+        part = self._part(_partition_of(layer, partition))
         table, separate = self._table_cues(), self._separate_cues()
         N, D = X.shape
         if table:
             lam_table = self._table_lambda(layer)
-            ll = self._chunked(lambda p: self._table_loglik(p, obs, aux, lam_table), X, self._needs(table))
+            ll = self._chunked(
+                lambda p: self._table_loglik(p, obs, aux, lam_table, part=part), X, self._needs(table)
+            )
             ll = jnp.where(jnp.isfinite(ll), ll, -jnp.inf)
         else:
             ll = jnp.zeros((N,), X.dtype)
         if not separate:
             return ll
         for c in separate:
-            e = jax.vmap(lambda x, c=c: self._separate_energy(c, x, obs, aux))(X)
+            e = jax.vmap(lambda x, c=c: self._separate_energy(c, x, obs, aux, part=part))(X)
             ll = ll - self._separate_weight(c, layer) * e
         return jnp.where(jnp.isfinite(ll), ll, -jnp.inf)
 
@@ -532,14 +586,16 @@ class Likelihood:
         return jax.lax.map(f, chunks).reshape(-1)[:N]
 
     def batch_value_and_grad(
-        self, X: jnp.ndarray, obs: Observation, layer=0
+        self, X: jnp.ndarray, obs: Observation, layer=0, partition=None
     ) -> tuple[jnp.ndarray, jnp.ndarray]:
         """Values ``(N,)`` and gradients ``∂ℓ/∂x (N, D)`` of particles ``X (N, D)``: the per-particle
         :meth:`log_likelihood` differentiated in one ``vmap`` (reverse mode through the chunked ``lax.map`` of
         :meth:`batch` was measured 4–9× slower on a CPU), its flesh points projected as world points
         (``by_runs=False``: :meth:`_surface_geometry`). Non-finite values give ``−inf`` and a zero gradient."""
         aux = self.prepare(obs)
-        f = jax.value_and_grad(lambda x: self.log_likelihood(x, obs, layer, aux, by_runs=False))
+        f = jax.value_and_grad(
+            lambda x: self.log_likelihood(x, obs, layer, aux, by_runs=False, partition=partition)
+        )
         return finite_value_and_grad(*jax.vmap(f)(X))
 
     # -----------------------------------------------------------------------------------------------------------
@@ -613,7 +669,7 @@ class Likelihood:
             elif kind == "template":
                 # the colours are read exactly as the cue reads them (nearest 8-bit colour, or bilinear), so that
                 # the energy at (x0, obs0) is 0
-                g0 = self.geometry(x0, (H, W))
+                g0 = jax.jit(lambda lik, x: lik.geometry(x, (H, W)))(self, x0)
                 ctx = self._context(c, cues._prepare_colour(obs0, ctx, {}))
                 rgb, inside = cues._surface_rgb(obs0, g0, ctx)
                 T = jnp.stack(rgb)  # (3, V, P)
@@ -627,9 +683,23 @@ class Likelihood:
 
 jax.tree_util.register_dataclass(
     Likelihood,
-    data_fields=["model", "rig", "surface", "view_weights", "schedule", "references", "cue_weights"],
+    data_fields=[
+        "model",
+        "rig",
+        "surface",
+        "view_weights",
+        "schedule",
+        "references",
+        "cue_weights",
+        "partition_weights",
+    ],
     meta_fields=["cues", "contour_points", "chunk_size"],
 )
+
+
+def _partition_of(layer, partition):
+    """The partition to weigh: ``partition`` when given, else the ``partition`` of a filter's layer, else 0."""
+    return getattr(layer, "partition", 0) if partition is None else partition
 
 
 # ---------------------------------------------------------------------------------------------------------------

@@ -47,13 +47,23 @@ class Geometry(NamedTuple):
     primitives: flesh.Primitives | None = None
 
 
+class PartWeights(NamedTuple):
+    """Sample weights of one partition (:mod:`jaxmocap.likelihood.partition`): ``surface (P,)``, ``contour (Q,)``,
+    ``joints (J,)``, each 1 on the partition's body parts and 0 elsewhere."""
+
+    surface: jnp.ndarray
+    contour: jnp.ndarray
+    joints: jnp.ndarray
+
+
 class CueContext(NamedTuple):
     """What a cue may read besides geometry and observation.
 
     Static: ``joint_names``, ``params`` (the cue's parameters), ``rig``, ``model`` (the body model),
     ``surface_segment`` (segment of each surface point). Per call: ``aux`` (the cue's ``prepare`` result) and
     ``ref`` (the reference data the likelihood holds for this cue: colour histograms or templates of the first
-    frame, see :meth:`jaxmocap.likelihood.compose.Likelihood.with_references`).
+    frame, see :meth:`jaxmocap.likelihood.compose.Likelihood.with_references`); ``part``: the sample weights of the
+    partition being weighed (:class:`PartWeights`), None for the whole body.
     """
 
     joint_names: tuple[str, ...]
@@ -63,6 +73,7 @@ class CueContext(NamedTuple):
     surface_segment: tuple[int, ...] = ()
     aux: object = None
     ref: object = None
+    part: PartWeights | None = None
 
 
 def _unit_scale(a: jnp.ndarray) -> float:
@@ -122,6 +133,15 @@ def _joint_index(ctx: CueContext, names) -> np.ndarray:
     if missing:
         raise ValueError(f"the model has no joints {missing}; it has {ctx.joint_names}")
     return np.asarray([ctx.joint_names.index(j) for j in names])
+
+
+def _part_mean(values, ctx: CueContext, field: str, axis=-1):
+    """``mean(values, axis)`` over the samples, or with a partition the weighted mean ``Σ a e / Σ a`` with the
+    partition's weights ``ctx.part.<field>`` (0 when the partition has none of these samples)."""
+    if ctx.part is None:
+        return jnp.mean(values, axis=axis)
+    a = getattr(ctx.part, field).astype(values.dtype)
+    return jnp.sum(values * a, axis=axis) / jnp.maximum(jnp.sum(a), 1e-12)
 
 
 def _weighted_mean(values, w, axis=-1, empty=0.0):

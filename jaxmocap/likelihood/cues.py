@@ -64,6 +64,7 @@ from jaxmocap.likelihood.cue_context import (
     Geometry,
     _contour_values,
     _joint_index,
+    _part_mean,
     _surface_values,
     _unit_scale,
 )
@@ -83,14 +84,14 @@ def foreground(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
     ``E_v = (1/P) Σ_p (1 − F_v(u_vp))``; a sample outside the image counts as background.
     """
     F, inside = _surface_values(obs.foreground, g, ctx)
-    return jnp.mean(jnp.where(inside, 1.0 - F, 1.0), axis=-1)
+    return _part_mean(jnp.where(inside, 1.0 - F, 1.0), ctx, "surface")
 
 
 def edges(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
     """Edge matching (López Méndez eq. 4.5): ``E_v = (1/Q) Σ_q (1 − Ẽ_v(u_vq))`` on the occluding-contour points,
     with ``Ẽ`` the dilated, smoothed edge map in [0, 1] (§4.2); out-of-image points count as 1."""
     E, inside = _contour_values(obs.edges, g, ctx)
-    return jnp.mean(jnp.where(inside, 1.0 - E, 1.0), axis=-1)
+    return _part_mean(jnp.where(inside, 1.0 - E, 1.0), ctx, "contour")
 
 
 def edge_distance(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
@@ -103,7 +104,7 @@ def edge_distance(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray
     sigma = ctx.params.get("sigma_px", 6.0)
     dmax = ctx.params.get("max_px", 30.0)
     D, inside = _contour_values(obs.edge_dt, g, ctx, unit=False)
-    D = jnp.mean(jnp.where(inside, jnp.minimum(D, dmax), dmax), axis=-1)
+    D = _part_mean(jnp.where(inside, jnp.minimum(D, dmax), dmax), ctx, "contour")
     return D * D / (2.0 * sigma * sigma)
 
 
@@ -112,7 +113,7 @@ def edge_fraction(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray
     (edge value below ``threshold``, default 0.5); out-of-image points count as off."""
     E = maps.gather(obs.edges, g.contour_index, _unit_scale(obs.edges))
     on = g.contour_inside & (E >= ctx.params.get("threshold", 0.5))
-    return 1.0 - jnp.mean(on.astype(E.dtype), axis=-1)
+    return 1.0 - _part_mean(on.astype(E.dtype), ctx, "contour")
 
 
 def _prepare_depth(obs: Observation, ctx: CueContext, cache: dict):
@@ -135,6 +136,8 @@ def depth(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
     ok = g.surface_inside & (Dm > 0)
     d = jnp.where(ok, jnp.abs(g.surface_depth - Dm), DEPTH_PENALTY_M)
     w = g.surface_facing.astype(d.dtype)
+    if ctx.part is not None:
+        w = w * ctx.part.surface.astype(d.dtype)
     mean = jnp.sum(d * w, axis=-1) / jnp.maximum(jnp.sum(w, axis=-1), 1.0)
     return jnp.minimum(mean, DEPTH_PENALTY_M) / DEPTH_PENALTY_M
 
@@ -294,6 +297,8 @@ def keypoints(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
     d = g.joints_uv[:, jidx] - det[..., :2]
     r2 = jnp.sum(d * d, axis=-1) / (sigma * sigma)
     c = det[..., 2]
+    if ctx.part is not None:
+        c = c * ctx.part.joints[jidx].astype(c.dtype)
     return jnp.sum(c * r2 / (1.0 + r2), axis=-1) / jnp.maximum(jnp.sum(c, axis=-1), 1e-6)
 
 
@@ -324,12 +329,14 @@ def wristband(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
     dmax = ctx.params.get("max_m", 0.5)
     slots = ctx.params.get("slots")
     if slots is not None:
-        X = g.joints[_joint_index(ctx, [j for j, _ in slots])]
+        wrists = _joint_index(ctx, [j for j, _ in slots])
+        X = g.joints[wrists]
         k = np.asarray([s for _, s in slots])
         b, c = obs.blobs3d[k], obs.blob_conf[k]
         dist = jnp.sqrt(jnp.sum((X - b) ** 2, axis=-1) + 1e-12)
     else:
-        X = g.joints[_joint_index(ctx, ("left_wrist", "right_wrist"))]
+        wrists = _joint_index(ctx, ("left_wrist", "right_wrist"))
+        X = g.joints[wrists]
         dist_all = jnp.sqrt(jnp.sum((X[:, None] - obs.blobs3d[None]) ** 2, axis=-1) + 1e-12)  # (2, K)
         dist_all = jnp.where(obs.blob_conf[None] > 0, dist_all, jnp.inf)
         j = jnp.argmin(dist_all, axis=-1)
@@ -337,6 +344,8 @@ def wristband(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
         c = jnp.where(jnp.isfinite(dist), obs.blob_conf[j], 0.0)
         dist = jnp.where(jnp.isfinite(dist), dist, dmax)
     d = jnp.minimum(dist, dmax) / dmax
+    if ctx.part is not None:
+        c = c * ctx.part.joints[wrists].astype(c.dtype)
     return jnp.sum(c * d) / jnp.maximum(jnp.sum(c), 1e-12)
 
 
@@ -349,9 +358,13 @@ def ground(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
     names = [j for j in ("left_ankle", "right_ankle") if j in ctx.joint_names]
     if not names:
         return jnp.zeros((), g.joints.dtype)
-    z = g.joints[_joint_index(ctx, names), 2]
+    ankles = _joint_index(ctx, names)
+    z = g.joints[ankles, 2]
     floor = ctx.params.get("floor", 0.0) + ctx.params.get("clearance", 0.0)
-    return jnp.sum(jnp.maximum(floor - z, 0.0)) / ctx.params.get("scale", 0.05)
+    below = jnp.maximum(floor - z, 0.0)
+    if ctx.part is not None:
+        below = below * ctx.part.joints[ankles].astype(below.dtype)
+    return jnp.sum(below) / ctx.params.get("scale", 0.05)
 
 
 #: Default inter-penetration pairs (segment names); pairs whose segments the model lacks are skipped.
@@ -425,7 +438,9 @@ class CueSpec(NamedTuple):
     ``prepare(obs, ctx, cache)``, an optional reference builder (see
     :meth:`jaxmocap.likelihood.compose.Likelihood.with_references`) and ``separate``: whether the likelihood
     composes the cue as a term of its own, after the sum of the λ table (the ``coverage`` cue; see
-    :class:`jaxmocap.likelihood.compose.Likelihood`)."""
+    :class:`jaxmocap.likelihood.compose.Likelihood`); ``partial``: whether the energy honours the sample weights of
+    a partition (``CueContext.part``, :mod:`jaxmocap.likelihood.partition`), else it is the whole body's in every
+    partition."""
 
     energy: Callable
     per_view: bool
@@ -435,6 +450,7 @@ class CueSpec(NamedTuple):
     prepare: Callable | None = None
     reference: str | None = None
     separate: bool = False
+    partial: bool = False
 
 
 def _surface_needs(p):
@@ -498,6 +514,20 @@ CUES: dict[str, CueSpec] = {
         coverage.coverage, True, _fixed("primitives"), ("foreground",), "yes", coverage.prepare, separate=True
     ),
 }
+
+#: Cues whose energy a partition restricts to its own body parts (:mod:`jaxmocap.likelihood.partition`).
+PARTIAL_CUES = (
+    "foreground",
+    "edges",
+    "edge_distance",
+    "edge_fraction",
+    "depth",
+    "colour_template",
+    "keypoints",
+    "wristband",
+    "ground",
+)
+CUES = {n: s._replace(partial=n in PARTIAL_CUES) for n, s in CUES.items()}
 
 #: Observation fields each cue reads (a clear error names the missing one).
 REQUIRES: dict[str, tuple[str, ...]] = {n: s.requires for n, s in CUES.items()}

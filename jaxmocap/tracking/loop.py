@@ -36,7 +36,9 @@ needs the initial pose, e.g. colour references); the first call of the step then
 with its median ``q_ref`` over the first frames after the initialisation: the track is lost when
 ``q_t > loss_ratio · q_ref`` for ``loss_frames`` consecutive frames, when the filter found no finite weight
 (``Info.recovered``), or when no view shows any foreground (no person). The filter is then re-initialised around a
-detection (``setup.reinit_mean``) with ``reinit_widen`` times the diffusion spread. Every frame's record in
+detection (``setup.reinit_mean``) with ``reinit_widen`` times the diffusion spread. A setup may define ``q_t`` itself
+(``setup.quality(loglik_max)`` of the step's per-layer maxima: a likelihood restricted to each partition's body
+parts sums the partitions' best energies). Every frame's record in
 ``diagnostics.json`` has ``quality``, ``lost``, ``reinitialised`` and ``reinit_source``. A setup without
 ``track_loss`` (PARSEC's) never loses the track.
 """
@@ -420,7 +422,9 @@ class TrackingLoop:
                 pending = self._prefetch(i + 1)
                 info, joints = jax.device_get((info, joints))
                 est = np.asarray(info.estimate, np.float64)
-                q = float(-np.asarray(info.layers.loglik_max).reshape(-1)[-1])
+                quality = getattr(setup, "quality", None)
+                top = np.asarray(info.layers.loglik_max)
+                q = float(quality(top)) if quality is not None else float(-top.reshape(-1)[-1])
                 recovered = bool(np.asarray(info.recovered))
                 lost, reinit_source = False, None
                 if setup.track_loss:

@@ -184,9 +184,13 @@ class TrackOptions:
     ``bvh_units`` (``cm`` or ``m``): the exported track (:mod:`jaxmocap.tracking.outputs`; not part of
     :meth:`identity`: a resumed run may export differently); ``keypoint_layout``: ``auto`` or a layout of
     :data:`jaxmocap.io.keypoints.LAYOUTS`; ``calibration_units``: ``auto``, ``m`` or ``mm``
-    (:func:`jaxmocap.io.calibration.check_units`).
+    (:func:`jaxmocap.io.calibration.check_units`); ``preset``: a named configuration of
+    :mod:`jaxmocap.tracking.presets` — its partitions, λ table and cue parameters are read from it by the setup,
+    while its option values are applied by :meth:`from_preset` (or :func:`jaxmocap.api.run_options`), under the
+    options given explicitly.
     """
 
+    preset: str | None = None
     model: str | None = None
     body: str | None = None
     filter: str = "apf"
@@ -216,6 +220,17 @@ class TrackOptions:
     keypoint_layout: str = "auto"
     calibration_units: str = "auto"
 
+    @classmethod
+    def from_preset(cls, name: str, **options) -> TrackOptions:
+        """The options of preset ``name`` (:mod:`jaxmocap.tracking.presets`) with ``options`` (fields given
+        explicitly) over them: ``TrackOptions.from_preset("li-kulic", particles=300)``."""
+        from jaxmocap.tracking.presets import apply
+
+        unknown = sorted(set(options) - {f.name for f in dataclasses.fields(cls)})
+        if unknown:
+            raise TypeError(f"unknown option(s) {', '.join(unknown)}")
+        return cls(**apply({**options, "preset": name}))
+
     def identity(self) -> dict:
         """The options a resumed run must share with the run it continues."""
         keys = (
@@ -241,6 +256,8 @@ class TrackOptions:
         )
         keys += ("reinit_widen", "keypoint_layout", "calibration_units")
         out = {k: getattr(self, k) for k in keys}
+        if self.preset is not None:  # (absent otherwise: runs written before presets resume as they were)
+            out["preset"] = self.preset
         if isinstance(self.particles, (list, tuple)):
             out["particles"] = [int(c) for c in self.particles]
         out["cues"] = None if self.cues is None else [list(c) for c in parse_cues(self.cues)]

@@ -30,6 +30,7 @@ from jaxmocap.io.sources import BadFrame
 from jaxmocap.likelihood import compose as lk
 from jaxmocap.likelihood.cues import DIFFERENTIABLE
 from jaxmocap.tracking import init as init_mod
+from jaxmocap.tracking import presets
 from jaxmocap.tracking.features import FeatureBuilder, TrackObservation
 from jaxmocap.tracking.options import (
     FILTERS,
@@ -93,10 +94,15 @@ class ObservationLoglik:
         return jnp.clip(jnp.asarray(getattr(layer, "index", layer)), 0, self.num_layers - 1)
 
     def __call__(self, X, tobs, layer):
-        return self.lik.batch(X, tobs.image, self._layer(layer))
+        return self.lik.batch(X, tobs.image, self._layer(layer), _partition(layer))
 
     def batch_value_and_grad(self, X, tobs, layer):
-        return self.lik.batch_value_and_grad(X, tobs.image, self._layer(layer))
+        return self.lik.batch_value_and_grad(X, tobs.image, self._layer(layer), _partition(layer))
+
+
+def _partition(layer):
+    """The partition of a filter's layer (0 for a bare layer index)."""
+    return getattr(layer, "partition", 0)
 
 
 class _Same:
@@ -119,7 +125,7 @@ class _Same:
         return hash(tuple(id(v) for v in self.values))
 
 
-_LIK_PARAMS = ("cue_weights", "schedule", "view_weights")
+_LIK_PARAMS = ("cue_weights", "schedule", "view_weights", "partition_weights")
 _LIK_GEOMETRY = ("model", "rig", "surface", "references")
 
 
@@ -157,7 +163,10 @@ class TrackSetup:
 
     Attributes: ``o`` (the options), ``source``, ``frames``, ``model``, ``cues`` (``(name, weight)``),
     ``features``, ``layers``, ``num_particles`` (per layer, or a list of one count per partition), ``std``
-    (diffusion per frame), ``likelihood`` (its colour references set by :meth:`set_references`).
+    (diffusion per frame), ``likelihood`` (its colour references set by :meth:`set_references`), ``preset``
+    (the :class:`~jaxmocap.tracking.presets.Preset` of ``o.preset`` or None), ``groups`` / ``parts`` (the
+    preset's partitions for a partitioned filter: DOF groups and body parts; None: the model's default groups,
+    :func:`jaxmocap.filters.factory.partition_groups`, weighed with the whole body).
     """
 
     track_loss = True
@@ -173,12 +182,14 @@ class TrackSetup:
         self.frames = frame_range(o.frames, source.num_frames)
         #: what was assumed or converted about the input, for the user (the source's notes, then the setup's)
         self.notes = list(getattr(source, "notes", []))
+        self.preset = presets.get(o.preset) if o.preset is not None else None
         self.body_dimensions = self._measured_body()
         body = None if o.body == "detections" else o.body
         # dimensions measured from the detections replace the input's own body file (``body = "detections"``)
         fallback = None if self.body_dimensions else source.body_path
         check_export_options(o.smooth, o.bvh_units, source.fps)
         self.model = build_model(o.model, body, fallback, self.body_dimensions)
+        self.groups, self.parts = presets.partition_layout(self.preset, self.model, o.filter)
         cues = parse_cues(o.cues) or default_cues(self.model.name, source.has_depth, source.has_keypoints)
         for name, _ in cues:
             if name == "depth" and not source.has_depth:
@@ -200,7 +211,7 @@ class TrackSetup:
                 f"the {o.filter} filter has no annealing layers (leave --layers out or set it to 1)"
             )
         n = o.particles if o.particles is not None else default_particles(self.model.name, o.filter)
-        counts = partition_counts(self.model, o.filter, n)  # raises on a bad count
+        counts = partition_counts(self.model, o.filter, n, self.groups)  # raises on a bad count
         self.num_particles = list(counts) if isinstance(n, (list, tuple)) else int(n)
         self.std = diffusion_std(self.model, source.fps) * float(o.diffusion_scale)
         self.likelihood = self._build_likelihood()
@@ -265,6 +276,8 @@ class TrackSetup:
         o = self.o
         names = [n for n, _ in self.cues]
         preset = o.filter if o.filter in ("fbapf", "fbapf2", "fbapf3", "m-apf") else "apf"
+        if self.preset is not None and self.preset.schedule is not None:
+            preset = self.preset.schedule
         table = lk.schedule_preset(preset, names, self.layers)  # (L, C): λ_c(l)
         gradient = o.filter in GRADIENT_FILTERS
         if gradient:
@@ -284,10 +297,21 @@ class TrackSetup:
             if n == "keypoints":
                 pairs = tuple((j, k) for j, k in init_mod.KEYPOINT_OF.items() if j in self.model.joint_names)
                 params = {**params, "pairs": pairs}
+            if self.preset is not None:
+                params = {**self.preset.cue_params.get(n, {}), **params}
             cue_objs.append(lk.Cue(n, w, params))
-        return lk.Likelihood.create(
+        lik = lk.Likelihood.create(
             self.model, self.features.rig, cue_objs, num_layers=self.layers, schedule=table
         )
+        if self.parts is not None and self.preset.partition_cues:
+            whole = [n for n in names if not lk.cues.CUES[n].partial]
+            if whole:
+                self.notes.append(
+                    f"cue(s) {', '.join(whole)} weigh the whole body in every partition (only "
+                    f"{', '.join(lk.cues.PARTIAL_CUES)} are restricted to a partition's body parts)"
+                )
+            lik = lik.with_partitions(self.parts)
+        return lik
 
     @property
     def loglik(self):
@@ -309,6 +333,16 @@ class TrackSetup:
     def needs_references(self) -> bool:
         return self.likelihood.needs_references
 
+    def quality(self, loglik_max: np.ndarray) -> float:
+        """The frame's ``q_t`` (:mod:`jaxmocap.tracking.loop`) from the step's best log-likelihood per layer
+        (``(K, L)`` for a partitioned filter): the last layer's, or with a likelihood restricted to each
+        partition's body parts the sum of every partition's last-layer best (each partition alone weighs only
+        its own parts)."""
+        top = np.asarray(loglik_max, np.float64)
+        if self.parts is not None and self.likelihood.partition_weights is not None:
+            return float(-np.sum(top.reshape(top.shape[0], -1)[:, -1]))
+        return float(-top.reshape(-1)[-1])
+
     # -- filter -------------------------------------------------------------------------------------------------
 
     def make_filter(self, x0: np.ndarray):
@@ -323,6 +357,7 @@ class TrackSetup:
             prior_mean=x0,
             prior_std=3.0 * self.std,
             survival_target=self.o.survival_target,
+            groups=self.groups,
         )
 
     def compile_arguments(self, key, obs):
