@@ -224,7 +224,8 @@ def test_compiled_once_and_outputs(sequence, tracked):
     assert len(diag["frames"][3]["layers"]) == 4
     assert diag["frames"][0]["init"] == "groundtruth"
     # the exported track (smoothed by default): the BVH reproduces its joints through the project's reader, and
-    # it stays within a few centimetres of the raw estimates
+    # it stays within a few centimetres of the raw estimates (2 Hz over 12 frames takes the frame-to-frame jitter of
+    # the legs away: 3-5 cm here), and no further from the ground truth than they are
     assert summary["smooth"] == f"butterworth:{smoothing.DEFAULT_CUTOFF_HZ:g}"
     sm = np.load(out / "poses_smoothed.npz")
     np.testing.assert_array_equal(sm["frame_index"], poses["frame_index"])
@@ -232,8 +233,8 @@ def test_compiled_once_and_outputs(sequence, tracked):
     m = bvh.load_bvh(out / "track.bvh", scale=0.01)
     J = export.bvh_eval_joints(m, run.model)
     np.testing.assert_allclose(export.eval_joints_of(run.model, J), sm["joints"], atol=1e-6)
-    assert np.nanmean(np.linalg.norm(sm["joints"] - poses["joints"], axis=-1)) < 0.03
-    assert np.isfinite(summary["mean_error_smoothed_mm"])
+    assert np.nanmean(np.linalg.norm(sm["joints"] - poses["joints"], axis=-1)) < 0.08
+    assert summary["mean_error_smoothed_mm"] <= summary["mean_error_mm"] + 5.0
     for name in (
         "poses.trc",
         "poses.c3d",
