@@ -611,22 +611,24 @@ class Likelihood:
             elif kind == "template":
                 # the colours are read exactly as the cue reads them (nearest 8-bit colour, or bilinear), so that
                 # the energy at (x0, obs0) is 0
-                refs[c] = jax.jit(functools.partial(self._template_reference, c))(x0, obs0)
+                refs[c] = _template_reference(self, c, x0, obs0)
         return dataclasses.replace(self, references=tuple(refs))
 
-    def _template_reference(self, c: int, x0: jnp.ndarray, obs0: Observation) -> tuple:
-        """``colour_template``'s reference of cue ``c`` (see :meth:`with_references`): ``T (3, V, P)`` and
-        ``valid (V, P)``. Run under ``jax.jit`` (one program instead of the geometry's hundreds of operations
-        dispatched, and compiled, one by one)."""
-        g0 = self.geometry(x0, obs0.image_shape)
-        ctx = self._context(c, cues._prepare_colour(obs0, self._context(c), {}))
-        rgb, inside = cues._surface_rgb(obs0, g0, ctx)
-        T = jnp.stack(rgb)  # (3, V, P)
-        valid = g0.surface_facing & inside
-        if obs0.has("foreground"):
-            fg = maps.gather(obs0.foreground, g0.surface_index, cues._unit_scale(obs0.foreground))
-            valid = valid & (fg >= 0.5)
-        return T.astype(self.model.offset.dtype), valid
+
+@functools.partial(jax.jit, static_argnums=1)
+def _template_reference(lik: Likelihood, c: int, x0: jnp.ndarray, obs0: Observation) -> tuple:
+    """``colour_template``'s reference of cue ``c`` of ``lik`` (see :meth:`Likelihood.with_references`):
+    ``T (3, V, P)`` and ``valid (V, P)``. One compiled program (the geometry's hundreds of operations run one by one
+    would each be compiled for their shapes), reused by every likelihood of the same structure and shapes."""
+    g0 = lik.geometry(x0, obs0.image_shape)
+    ctx = lik._context(c, cues._prepare_colour(obs0, lik._context(c), {}))
+    rgb, inside = cues._surface_rgb(obs0, g0, ctx)
+    T = jnp.stack(rgb)  # (3, V, P)
+    valid = g0.surface_facing & inside
+    if obs0.has("foreground"):
+        fg = maps.gather(obs0.foreground, g0.surface_index, cues._unit_scale(obs0.foreground))
+        valid = valid & (fg >= 0.5)
+    return T.astype(lik.model.offset.dtype), valid
 
 
 @functools.partial(jax.jit, static_argnums=1)
