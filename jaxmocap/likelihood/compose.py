@@ -40,6 +40,7 @@ Example::
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Sequence
 
@@ -656,11 +657,8 @@ class Likelihood:
                     if p.get("soft", False):  # the same triangular-kernel binning as the cue
                         rows = []
                         for m in masks:
-                            px = jnp.asarray(rgb8[v][m], jnp.float32) / 255.0
-                            h = jnp.sum(
-                                cues._soft_bin_weights(tuple(px[:, i] for i in range(3)), bins), axis=0
-                            )
-                            rows.append(np.asarray(h) / max(float(jnp.sum(h)), 1e-12))
+                            h = np.asarray(_soft_histogram(jnp.asarray(rgb8[v][m]), bins))
+                            rows.append(h / max(float(jnp.sum(h)), 1e-12))
                         hists.append(np.stack(rows))
                     else:
                         bgr = np.ascontiguousarray(rgb8[v, ..., ::-1])
@@ -669,16 +667,32 @@ class Likelihood:
             elif kind == "template":
                 # the colours are read exactly as the cue reads them (nearest 8-bit colour, or bilinear), so that
                 # the energy at (x0, obs0) is 0
-                g0 = jax.jit(lambda lik, x: lik.geometry(x, (H, W)))(self, x0)
-                ctx = self._context(c, cues._prepare_colour(obs0, ctx, {}))
-                rgb, inside = cues._surface_rgb(obs0, g0, ctx)
-                T = jnp.stack(rgb)  # (3, V, P)
-                valid = g0.surface_facing & inside
-                if obs0.has("foreground"):
-                    fg = maps.gather(obs0.foreground, g0.surface_index, cues._unit_scale(obs0.foreground))
-                    valid = valid & (fg >= 0.5)
-                refs[c] = (T.astype(self.model.offset.dtype), valid)
+                refs[c] = _template_reference(self, c, x0, obs0)
         return dataclasses.replace(self, references=tuple(refs))
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def _template_reference(lik: Likelihood, c: int, x0: jnp.ndarray, obs0: Observation) -> tuple:
+    """``colour_template``'s reference of cue ``c`` of ``lik`` (see :meth:`Likelihood.with_references`):
+    ``T (3, V, P)`` and ``valid (V, P)``. One compiled program (the geometry's hundreds of operations run one by one
+    would each be compiled for their shapes), reused by every likelihood of the same structure and shapes."""
+    g0 = lik.geometry(x0, obs0.image_shape)
+    ctx = lik._context(c, cues._prepare_colour(obs0, lik._context(c), {}))
+    rgb, inside = cues._surface_rgb(obs0, g0, ctx)
+    T = jnp.stack(rgb)  # (3, V, P)
+    valid = g0.surface_facing & inside
+    if obs0.has("foreground"):
+        fg = maps.gather(obs0.foreground, g0.surface_index, cues._unit_scale(obs0.foreground))
+        valid = valid & (fg >= 0.5)
+    return T.astype(lik.model.offset.dtype), valid
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def _soft_histogram(rgb8: jnp.ndarray, bins: int) -> jnp.ndarray:
+    """``(bins³,)`` sums of the triangular-kernel bin weights (:func:`jaxmocap.likelihood.cues._soft_bin_weights`)
+    of the 8-bit colours ``rgb8 (N, 3)`` (RGB), unnormalised."""
+    px = rgb8.astype(jnp.float32) / 255.0
+    return jnp.sum(cues._soft_bin_weights(tuple(px[:, i] for i in range(3)), bins), axis=0)
 
 
 jax.tree_util.register_dataclass(

