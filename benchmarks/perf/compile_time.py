@@ -206,18 +206,23 @@ def first_frame_seconds(
     return seconds, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime), None
 
 
+def _table_start(before: pathlib.Path | None, alone: str, paired: str) -> tuple[dict, list[str]]:
+    """The checkouts a table compares (``after`` = this one, and ``before`` when given) and its two header lines:
+    ``alone`` without a ``before`` checkout, ``paired`` with one."""
+    trees = {"after": ROOT} if before is None else {"before": before, "after": ROOT}
+    head = alone if before is None else paired
+    return trees, [head, "|" + "---|" * (head.count("|") - 1)]
+
+
 def first_frame_table(
     models, families, seq, before: pathlib.Path | None, work: pathlib.Path, rounds: int
 ) -> list[str]:
-    trees = {"after": ROOT} if before is None else {"before": before, "after": ROOT}
-    if before is None:
-        lines = ["| model | filter | first frame s | CPU s |", "|---|---|---|---|"]
-    else:
-        lines = [
-            "| model | filter | before s | after s | after / before (median of rounds) | range of rounds "
-            "| before CPU s | after CPU s |",
-            "|---|---|---|---|---|---|---|---|",
-        ]
+    trees, lines = _table_start(
+        before,
+        "| model | filter | first frame s | CPU s |",
+        "| model | filter | before s | after s | after / before (median of rounds) | range of rounds "
+        "| before CPU s | after CPU s |",
+    )
     for m in models:
         for fam in families:
             out = work / f"run_{m}_{fam}"
@@ -298,14 +303,11 @@ def step_worker(model: str, family: str, seq: pathlib.Path) -> None:
 
 
 def step_table(models, families, seq, before: pathlib.Path | None, rounds: int) -> list[str]:
-    trees = {"after": ROOT} if before is None else {"before": before, "after": ROOT}
-    if before is None:
-        lines = ["| model | filter | step ms |", "|---|---|---|"]
-    else:
-        lines = [
-            "| model | filter | before ms | after ms | after / before (median of rounds) | range of rounds |",
-            "|---|---|---|---|---|---|",
-        ]
+    trees, lines = _table_start(
+        before,
+        "| model | filter | step ms |",
+        "| model | filter | before ms | after ms | after / before (median of rounds) | range of rounds |",
+    )
     for m in models:
         for fam in families:
             cmd = [sys.executable, __file__, "--worker", m, fam, str(seq)]
@@ -347,14 +349,11 @@ def step_table(models, families, seq, before: pathlib.Path | None, rounds: int) 
 
 
 def tracks_table(models, families, seq, before: pathlib.Path | None, seeds, work: pathlib.Path) -> list[str]:
-    trees = {"after": ROOT} if before is None else {"before": before, "after": ROOT}
-    if before is None:
-        lines = ["| model | filter | seeds | mean joint error mm |", "|---|---|---|---|"]
-    else:
-        lines = [
-            "| model | filter | seeds | identical poses | largest difference | before mm | after mm |",
-            "|---|---|---|---|---|---|---|",
-        ]
+    trees, lines = _table_start(
+        before,
+        "| model | filter | seeds | mean joint error mm |",
+        "| model | filter | seeds | identical poses | largest difference | before mm | after mm |",
+    )
     for m in models:
         for fam in families:
             poses: dict = {k: [] for k in trees}

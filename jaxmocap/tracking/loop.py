@@ -377,8 +377,9 @@ class TrackingLoop:
         ending = {"wall": t_begin, "resumed_at": resumed_at}
         ck = run_folder.Checkpoints(self.out, o.fsync, model.num_dofs, p["x0"], self._ref_frame)
         writer = run_folder.BackgroundWriter()
-        smooth = o.smooth is None or str(o.smooth).lower() != "none"
-        threading.Thread(target=outputs.preload, args=(smooth,), name="jaxmocap-preload", daemon=True).start()
+        threading.Thread(
+            target=outputs.preload, args=(o.smooth,), name="jaxmocap-preload", daemon=True
+        ).start()
 
         def write_frame(t, x, joints, record, after):  # in the writer's thread, in frame order
             self._write_frame(pose_writer, diag, t, x, joints, record)
