@@ -1,0 +1,77 @@
+"""Named tracker configurations that follow a paper: ``jaxmocap track --preset NAME``, ``preset = "NAME"`` in a
+``--config`` file, ``jaxmocap.track(preset=NAME)`` or :meth:`jaxmocap.tracking.options.TrackOptions.from_preset`.
+
+A preset is plain data (:class:`Preset`):
+
+* ``options`` — values of :class:`~jaxmocap.tracking.options.TrackOptions` fields. They sit under everything given
+  explicitly: an option on the command line, in the configuration file or as a keyword overrides the preset's
+  value (:func:`apply`; precedence command line > file > preset > per-model defaults). The options that only make
+  sense for the preset's filter (``particles``, ``layers``) are left out when another filter is chosen.
+* what is not an option: ``partitions`` (:class:`Partition`: the body parts whose DOFs a partition samples and
+  whose cues weigh it, and its particle count; used by the partitioned and hierarchical filters, in this order),
+  ``schedule`` (the λ table of :func:`jaxmocap.likelihood.compose.schedule_preset`), ``cue_params`` (static
+  parameters per cue) and ``partition_cues`` (weigh each partition with the cues of its own body parts,
+  :mod:`jaxmocap.likelihood.partition`).
+
+Each paper's preset lives in a module of its own that puts the paper's parameters beside the values chosen here
+and lists what differs or is missing: :mod:`.li_kulic` (``li-kulic``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from jaxmocap.choices import PARTITIONED
+from jaxmocap.tracking.presets.base import FILTER_OPTIONS, Partition, Preset
+from jaxmocap.tracking.presets.li_kulic import LI_KULIC
+
+__all__ = ["LI_KULIC", "PRESETS", "Partition", "Preset", "apply", "get", "partition_layout"]
+
+#: The presets by name.
+PRESETS: dict[str, Preset] = {LI_KULIC.name: LI_KULIC}
+
+
+def get(name: str) -> Preset:
+    """The preset ``name``; ``ValueError`` naming the known ones otherwise."""
+    if name not in PRESETS:
+        raise ValueError(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
+    return PRESETS[name]
+
+
+def apply(values: Mapping[str, object]) -> dict:
+    """``values`` (option names → values given explicitly) with the options of ``values["preset"]`` under them
+    (module docstring); ``values`` itself when it names no preset."""
+    name = values.get("preset")
+    if name is None:
+        return dict(values)
+    preset = get(str(name))
+    base = dict(preset.options)
+    chosen = values.get("filter")
+    if chosen is not None and chosen != base.get("filter"):
+        for key in FILTER_OPTIONS:
+            base.pop(key, None)
+    base.update({k: v for k, v in values.items() if v is not None})
+    return base
+
+
+def partition_layout(preset: Preset | None, model, filter_name: str):
+    """``(DOF groups, segment sets)`` of the preset's partitions on ``model`` for ``filter_name``, or
+    ``(None, None)`` when the filter is not partitioned or the preset has no partitions. ``ValueError`` when the
+    model lacks a body part of a partition or a partition has no DOF."""
+    if preset is None or not preset.partitions or filter_name not in PARTITIONED:
+        return None, None
+    names = model.segment_names
+    missing = [s for p in preset.partitions for s in p.segments if s not in names]
+    if missing:
+        raise ValueError(
+            f"preset {preset.name!r} partitions the {preset.model} body; {model.name} has no "
+            f"{', '.join(missing)} (use --model {preset.model})"
+        )
+    groups, parts = [], []
+    for p in preset.partitions:
+        dofs = tuple(d for s in p.segments for d in model.topology.segment_dofs[names.index(s)])
+        if not dofs:
+            raise ValueError(f"partition {p.name!r} of preset {preset.name!r} has no DOF on {model.name}")
+        groups.append(dofs)
+        parts.append(p.segments)
+    return tuple(groups), tuple(parts)

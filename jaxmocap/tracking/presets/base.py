@@ -1,0 +1,36 @@
+"""The data of a preset (:mod:`jaxmocap.tracking.presets`): :class:`Preset` and :class:`Partition`."""
+
+from __future__ import annotations
+
+import dataclasses
+import types
+from collections.abc import Mapping
+
+#: Options of a preset that belong to its filter: dropped when another filter is chosen explicitly.
+FILTER_OPTIONS = ("particles", "layers")
+
+
+@dataclasses.dataclass(frozen=True)
+class Partition:
+    """One partition of partitioned sampling: ``name``, the body parts (segment names) whose DOFs it samples and
+    whose cues weigh it (``segments``), and its particle count ``particles``."""
+
+    name: str
+    segments: tuple[str, ...]
+    particles: int
+
+
+@dataclasses.dataclass(frozen=True)
+class Preset:
+    """A named configuration (module docstring). ``model``: the body model the partitions are written for."""
+
+    name: str
+    options: Mapping[str, object]
+    model: str | None = None
+    partitions: tuple[Partition, ...] = ()
+    schedule: str | None = None
+    cue_params: Mapping[str, Mapping[str, object]] = dataclasses.field(default_factory=dict)
+    partition_cues: bool = False
+
+    def __post_init__(self):
+        object.__setattr__(self, "options", types.MappingProxyType(dict(self.options)))
