@@ -86,8 +86,9 @@ def open_source(
     depth: Sequence | None = None,
     keypoint_layout: str = "auto",
     calibration_units: str = "auto",
+    plates: Sequence | None = None,
 ):
-    """The frame source of a run: ``videos`` + ``calibration`` (+ ``keypoints``, ``depth``:
+    """The frame source of a run: ``videos`` + ``calibration`` (+ ``keypoints``, ``depth``, ``plates``:
     :class:`jaxmocap.io.sources.VideoSource`), or ``input``: a Pose2Sim project folder
     (:func:`jaxmocap.io.pose2sim.open_project`) or a sequence folder (:class:`jaxmocap.io.sources.SequenceSource`)."""
     from jaxmocap.io import pose2sim, sources
@@ -106,10 +107,11 @@ def open_source(
             depth,
             keypoint_layout=keypoint_layout,
             calibration_units=calibration_units,
+            plates=plates,
         )
-    if keypoints or depth or calibration:
+    if keypoints or depth or calibration or plates:
         raise ValueError(
-            "--calibration, --keypoints and --depth go with --videos (a folder input has its own)"
+            "--calibration, --keypoints, --depth and --plates go with --videos (a folder input has its own)"
         )
     if pose2sim.is_project(input):
         return pose2sim.open_project(input, keypoint_layout, calibration_units)
@@ -185,6 +187,7 @@ def track(
     input: str | os.PathLike | None = None,
     keypoints: Sequence[str | os.PathLike] | None = None,
     depth: Sequence[str | os.PathLike] | None = None,
+    plates: Sequence[str | os.PathLike] | None = None,
     out: str | os.PathLike | None = None,
     config: str | os.PathLike | None = None,
     quiet: bool = True,
@@ -194,7 +197,7 @@ def track(
     """Track a person; returns :class:`TrackResult` (module docstring).
 
     Input: ``videos`` (one per camera, synchronised) with ``calibration`` and optional ``keypoints`` / ``depth``
-    folders (one per camera), or ``input``: a Pose2Sim project folder or a sequence folder. ``options``: the fields
+    folders and ``plates`` (empty-scene images; one of each per camera), or ``input``: a Pose2Sim project folder or a sequence folder. ``options``: the fields
     of :class:`jaxmocap.tracking.options.TrackOptions` (``filter``, ``particles``, ``seed``, ``cues``, ``frames``,
     ``keypoint_layout``, ``calibration_units``, ``preset`` …; a preset's values lie under the others). ``config``: a configuration file
     (:func:`jaxmocap.tracking.options.load_config`) whose values the arguments given here override. ``out``: keep
@@ -218,6 +221,7 @@ def track(
         "calibration": calibration,
         "keypoints": None if keypoints is None else [os.fspath(k) for k in keypoints],
         "depth": None if depth is None else [os.fspath(d) for d in depth],
+        "plates": None if plates is None else [os.fspath(p) for p in plates],
         **options,
     }
     values = {}
@@ -231,7 +235,7 @@ def track(
     if (
         input is not None or videos is not None
     ) and config is not None:  # inputs given here replace the file's
-        for k in ("input", "videos", "calibration", "keypoints", "depth"):
+        for k in ("input", "videos", "calibration", "keypoints", "depth", "plates"):
             values.pop(k, None)
     values.update({k: v for k, v in given.items() if v is not None})
     values.pop("out", None)
@@ -244,6 +248,7 @@ def track(
         values.get("depth"),
         opts.keypoint_layout,
         opts.calibration_units,
+        plates=values.get("plates"),
     )
     temporary = out is None
     folder = (

@@ -181,7 +181,7 @@ def _print_summary(summary: dict, out) -> None:
 
 
 #: ``jaxmocap track`` arguments that are inputs rather than options (see :data:`jaxmocap.tracking.options.INPUT_KEYS`)
-_INPUTS = ("input", "videos", "calibration", "keypoints", "depth")
+_INPUTS = ("input", "videos", "calibration", "keypoints", "depth", "plates")
 
 
 def _stopped(run, out, signum) -> int:
@@ -244,6 +244,7 @@ def _open_source(values: dict, options):
         values.get("depth"),
         options.keypoint_layout,
         options.calibration_units,
+        plates=values.get("plates"),
     )
 
 
@@ -580,6 +581,13 @@ def _add_tracking_commands(sub) -> None:
         "--depth", nargs="+", metavar="DIR", help="depth-map folder per camera: .npy metres or 16-bit PNG mm"
     )
     tr.add_argument(
+        "--plates",
+        nargs="+",
+        metavar="IMAGE",
+        help="image of the empty scene per camera (with --videos), for --foreground plate; a sequence folder's "
+        "are views/<camera>/background.png",
+    )
+    tr.add_argument(
         "--preset",
         choices=tuple(_PRESETS),
         help="a paper's tracker: li-kulic (Li & Kulic's ten-partition filter on full25); options given here or "
@@ -611,7 +619,9 @@ def _add_tracking_commands(sub) -> None:
     tr.add_argument(
         "--foreground",
         choices=_FOREGROUNDS,
-        help="foreground source (default: masks of a sequence, else a median background)",
+        help="foreground source: mask (a sequence's masks), plate (subtraction against each camera's empty-scene "
+        "image), median (a median background of the run's frames), mog2, none; default: masks, else plates, "
+        "else median",
     )
     tr.add_argument(
         "--downsample", type=int, choices=(1, 2, 4), help="process images at 1/1, 1/2 or 1/4 size"

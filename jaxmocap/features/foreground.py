@@ -7,7 +7,8 @@ model returns a mask ``(H, W)`` ``uint8`` with 255 = foreground, 0 = background 
 Methods:
 
 * ``StaticBackground`` — Li & Kulić: per-channel thresholds ``|I_c − B_c| > T_c`` against a background image,
-  combined over channels (any channel), cleaned by a small opening and dilated.
+  combined over channels (any channel), cleaned by a small opening and dilated. ``plate_background`` builds one
+  against a recorded empty-scene plate with its threshold from the plate's own sensor noise (``noise_sigma``).
 * ``GaussianBackground`` — López Méndez (2009) eq. 4.1–4.2: one Gaussian per pixel and channel,
   ``μ_t = ρ I_t + (1 − ρ) μ_{t−1}``, ``σ²_t = ρ (I_t − μ_t)² + (1 − ρ) σ²_{t−1}``; foreground where
   ``|I − μ| > k σ`` in any channel (tested against the model of the previous frame, then updated).
@@ -94,6 +95,12 @@ class ShadowParams:
     cd_max: float = 6.0
 
 
+#: Shadow test of :func:`plate_background`: a cast shadow darkens the background to between half and nine tenths
+#: of its brightness without changing its chromaticity by more than 4 noise standard deviations of the difference
+#: of two exposures.
+PLATE_SHADOW = ShadowParams(alpha_min=0.5, alpha_max=0.9, cd_max=4.0)
+
+
 def shadow_mask(
     frame: np.ndarray, mean: np.ndarray, std: np.ndarray | float, params: ShadowParams = ShadowParams()
 ) -> np.ndarray:
@@ -102,6 +109,32 @@ def shadow_mask(
     alpha, cd = brightness_chromaticity_distortion(frame, mean, std)
     shadow = (alpha >= params.alpha_min) & (alpha < params.alpha_max) & (cd <= params.cd_max)
     return shadow.astype(np.uint8) * np.uint8(255)
+
+
+def noise_sigma(image: np.ndarray) -> float:
+    """Standard deviation of additive white sensor noise in ``image`` ``(H, W)`` or ``(H, W, C)`` (units of the
+    image), estimated from the image alone.
+
+    The residual of Immerkær's (1996) mask ``N = [[1, −2, 1], [−2, 4, −2], [1, −2, 1]]`` is zero on any locally
+    linear intensity and, for white noise of variance ``σ²``, has variance ``σ² Σ N² = 36 σ²``; ``σ`` is the
+    median absolute residual over the interior pixels divided by ``6 Φ⁻¹(3/4)`` (the median absolute deviation
+    of a normal variable), so that the edges and texture of a scene, a minority of pixels, do not inflate it as
+    they inflate Immerkær's mean. Per channel; the median over channels. Integer images quantise the median to
+    steps of ``1 / (6 · 0.6745)``.
+    """
+    img = np.asarray(image, np.float32)
+    if img.ndim == 2:
+        img = img[..., None]
+    if img.ndim != 3 or img.shape[0] < 3 or img.shape[1] < 3:
+        raise MocapInputError(
+            None, f"expected an image (H, W) or (H, W, C) of at least 3x3, got {np.shape(image)}"
+        )
+    kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+    out = []
+    for c in range(img.shape[2]):
+        r = cv2.filter2D(img[..., c], cv2.CV_32F, kernel)[1:-1, 1:-1]
+        out.append(float(np.median(np.abs(r))) / (6.0 * 0.6744897501960817))
+    return float(np.median(out))
 
 
 class StaticBackground:
@@ -152,6 +185,34 @@ class StaticBackground:
             shadow = shadow_mask(frame, self.background, self.noise_std, self.shadow)
             mask = cv2.bitwise_and(mask, cv2.bitwise_not(shadow))
         return clean_mask(mask, self.open_size, self.dilate_size)
+
+
+def plate_background(
+    plate: np.ndarray,
+    sigma: float | None = None,
+    shadow: ShadowParams | None = PLATE_SHADOW,
+    open_size: int = 1,
+    dilate_size: int = 1,
+) -> StaticBackground:
+    """A :class:`StaticBackground` against a recorded empty-scene ``plate`` ``(H, W, 3)`` BGR uint8.
+
+    ``sigma``: the sensor noise (8-bit units); None estimates it from the plate (:func:`noise_sigma`). A frame
+    and the plate each carry that noise, so their difference has ``√2 σ``: the threshold is four of those,
+    ``T = max(8, 4 √2 σ)`` per channel, and the shadow test (``shadow``; None: no shadow removal) uses
+    ``√2 σ`` (at least 1) as its noise scale. ``open_size`` / ``dilate_size``: :func:`clean_mask` (default none).
+    """
+    plate = _check_frame(plate, what="plate")
+    sigma = noise_sigma(plate) if sigma is None else float(sigma)
+    if not np.isfinite(sigma) or sigma < 0:
+        raise ValueError(f"sensor noise must be finite and non-negative, got {sigma}")
+    return StaticBackground(
+        plate,
+        max(8.0, 4.0 * np.sqrt(2.0) * sigma),
+        open_size=open_size,
+        dilate_size=dilate_size,
+        shadow=shadow,
+        noise_std=max(1.0, np.sqrt(2.0) * sigma),
+    )
 
 
 class GaussianBackground:

@@ -24,6 +24,7 @@ from jaxmocap.features.foreground import (
     Mog2Background,
     ShadowParams,
     StaticBackground,
+    plate_background,
 )
 from jaxmocap.features.observation import Observation, make_observation
 from jaxmocap.features.resample import downsample, scale_rig
@@ -145,6 +146,18 @@ class FeatureExtractor:
                 f, thresholds=c.static_thresholds, shadow=c.shadow, noise_std=c.noise_std, **c.mask_cleaning
             )
             for f in frames
+        ]
+
+    def set_plates(self, plates, sigmas=None) -> None:
+        """Static background per view against recorded empty-scene plates (``V`` BGR images, full size):
+        :func:`jaxmocap.features.foreground.plate_background`, with the sensor noise ``sigmas`` (one per view,
+        8-bit units; None: estimated from each plate), shadow removal, no opening or dilation: at four noise
+        standard deviations a plate's false positives are rare (6·10⁻⁵ per pixel and channel), and an opening
+        erodes limbs a few pixels wide (on the 96×72 walk it halves the IoU with the exact masks)."""
+        frames = self._check_frames(plates)
+        sigmas = [None] * len(frames) if sigmas is None else list(sigmas)
+        self.backgrounds = [
+            plate_background(f, s, open_size=1, dilate_size=1) for f, s in zip(frames, sigmas, strict=True)
         ]
 
     def set_background_depth(self, depths) -> None:

@@ -11,6 +11,7 @@ Layout of a sequence folder (``T`` frames, ``V`` cameras; every image is a PNG n
     views/<camera name>/mask/   8-bit foreground masks, 255 = person, 0 = background (optional)
     views/<camera name>/depth/  16-bit depth along the camera z axis in millimetres, 0 = no depth (optional)
     views/<camera name>/labels/ 8-bit part labels: 0 = background, k + 1 = part k of meta["parts"] (optional)
+    views/<camera name>/background.png   the camera's empty scene, recorded before the subject walks in (optional)
     groundtruth.npz             joints (T, 15, 3) metres, z up, in the order of joint_names
                                 (= jaxmocap.geometry.body.EVAL_JOINTS); all_joints (T, J, 3) / all_joint_names (optional)
     body.toml                   body file of the subject (jaxmocap.geometry.body.load_body) (optional; meta["body"])
@@ -47,6 +48,8 @@ META = "meta.json"
 GROUNDTRUTH = "groundtruth.npz"
 BODY = "body.toml"
 VIEWS = "views"
+#: File name of a view's empty-scene plate inside ``views/<camera>/``.
+PLATE = "background.png"
 CHANNELS = ("rgb", "mask", "depth", "labels")
 
 __all__ = [
@@ -55,6 +58,7 @@ __all__ = [
     "GROUNDTRUTH",
     "BODY",
     "VIEWS",
+    "PLATE",
     "CHANNELS",
     "GroundTruth",
     "Sequence",

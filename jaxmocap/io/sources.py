@@ -2,8 +2,9 @@
 (metres) and 2D keypoints.
 
 A source has ``rig``, ``fps``, ``num_frames``, ``view_names``, ``has_masks``, ``has_depth``, ``has_keypoints``,
-``body_path``, ``groundtruth`` (``(T, 15, 3)`` joints or None), ``description`` (a dict for ``run.json``),
-``read(t, masks=True, depth=True) -> FrameData`` and ``close()``. A frame that cannot be read raises
+``body_path``, ``groundtruth`` (``(T, 15, 3)`` joints or None), ``plate_files`` (one empty-scene image per view,
+or None), ``description`` (a dict for ``run.json``), ``read(t, masks=True, depth=True) -> FrameData``,
+``plates()`` and ``close()``. A frame that cannot be read raises
 :class:`BadFrame`; everything else that is wrong with the input raises :class:`~jaxmocap.errors.MocapInputError`.
 
 * :class:`SequenceSource` — a sequence folder (:mod:`jaxmocap.io.sequence`);
@@ -26,7 +27,15 @@ import numpy as np
 from jaxmocap.errors import MocapInputError
 from jaxmocap.io.calibration import check_units, load_calibration
 
-__all__ = ["BadFrame", "FrameData", "SequenceSource", "VideoSource", "codec_cropped", "fit_image_sizes"]
+__all__ = [
+    "BadFrame",
+    "FrameData",
+    "SequenceSource",
+    "VideoSource",
+    "codec_cropped",
+    "fit_image_sizes",
+    "read_plates",
+]
 
 
 class BadFrame(Exception):
@@ -96,6 +105,32 @@ def _read_depth_file(path: pathlib.Path, size) -> np.ndarray:
     return d
 
 
+def read_plates(paths: Sequence[pathlib.Path], rig) -> list[np.ndarray]:
+    """The empty-scene plates ``paths`` (one image file per camera of ``rig``, in its order) as BGR uint8 images
+    of the calibration's image sizes. :class:`MocapInputError` naming the file when one is missing, unreadable
+    or of another size."""
+    if len(paths) != len(rig.image_size):
+        raise MocapInputError(
+            paths[0] if paths else None, f"{len(paths)} plates for {len(rig.image_size)} cameras"
+        )
+    out = []
+    for path, size in zip(paths, rig.image_size, strict=True):
+        path = pathlib.Path(path)
+        if not path.is_file():
+            raise MocapInputError(path, "no such plate (an image of the camera's empty scene)")
+        img = cv2.imread(os.fspath(path), cv2.IMREAD_COLOR)
+        if img is None:
+            raise MocapInputError(path, "cannot read the plate image")
+        want = tuple(int(x) for x in size)
+        if (img.shape[1], img.shape[0]) != want:
+            raise MocapInputError(
+                path,
+                f"the plate is {img.shape[1]}x{img.shape[0]} but the camera's images are {want[0]}x{want[1]}",
+            )
+        out.append(img)
+    return out
+
+
 class SequenceSource:
     """Frames of a sequence folder (:func:`jaxmocap.io.sequence.load_sequence`)."""
 
@@ -114,7 +149,13 @@ class SequenceSource:
         self.body_path = self.seq.body_path
         gt = self.seq.groundtruth
         self.groundtruth = None if gt is None else gt.joints
+        plates = [self.root / seqio.VIEWS / name / seqio.PLATE for name in self.view_names]
+        self.plate_files = plates if all(p.is_file() for p in plates) else None
         self.description = {"sequence": os.fspath(self.root)}
+
+    def plates(self) -> list[np.ndarray]:
+        """The views' empty-scene plates (:func:`read_plates`)."""
+        return read_plates(self.plate_files or [], self.rig)
 
     def read(self, t: int, masks: bool = True, depth: bool = True) -> FrameData:
         """Frame ``t``: BGR images, and the masks / depth maps the sequence has unless ``masks`` / ``depth`` is
@@ -188,6 +229,7 @@ class VideoSource:
     (:func:`jaxmocap.io.subject.check_rig`: camera order, units); depth maps must be in metres (median depth
     0.1–30 m). ``notes``: what was assumed or converted, for the user. ``keypoint_layout``: ``"auto"`` or a layout
     name; ``layout_hint``: the layout the recording's configuration names (used when the files leave it open).
+    ``plates``: one image of the empty scene per camera (for ``--foreground plate``), checked when read.
     """
 
     def __init__(
@@ -200,6 +242,7 @@ class VideoSource:
         calibration_units: str = "auto",
         layout_hint: str | None = None,
         fps: float | None = None,
+        plates: Sequence[str | os.PathLike] | None = None,
     ):
         self.videos = [pathlib.Path(v) for v in videos]
         if not self.videos:
@@ -293,6 +336,11 @@ class VideoSource:
                     )
                 self.depth_files.append(files)
         self.has_depth = self.depth_files is not None
+        self.plate_files = [pathlib.Path(p) for p in plates] if plates else None
+        if self.plate_files is not None and len(self.plate_files) != len(self.videos):
+            raise MocapInputError(
+                self.plate_files[0], f"{len(self.plate_files)} plates for {len(self.videos)} videos"
+            )
         self.description = {
             "videos": [os.fspath(v) for v in self.videos],
             "calibration": os.fspath(calibration),
@@ -300,6 +348,12 @@ class VideoSource:
             "keypoint_layout": self.keypoint_layout,
             "depth": [os.fspath(d) for d in depth or []],
         }
+        if plates:
+            self.description["plates"] = [os.fspath(p) for p in plates]
+
+    def plates(self) -> list[np.ndarray]:
+        """The cameras' empty-scene plates (:func:`read_plates`)."""
+        return read_plates(self.plate_files or [], self.rig)
 
     def read(self, t: int, masks: bool = True, depth: bool = True) -> FrameData:
         """Frame ``t`` of every video (BGR), with the depth maps unless ``depth`` is False (videos have no

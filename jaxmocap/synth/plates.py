@@ -33,7 +33,7 @@ __all__ = [
 ]
 
 #: File name of a view's plate inside ``views/<camera>/``.
-PLATE = "background.png"
+PLATE = seqio.PLATE
 
 
 def plate_path(root: str | os.PathLike, view: str) -> pathlib.Path:
@@ -59,7 +59,7 @@ def read_plate(root: str | os.PathLike, view: str) -> np.ndarray:
 
 #: Shadow test for the room's shadows: a full shadow darkens the floor to ``ROOM_AMBIENT / (ROOM_AMBIENT + (1 −
 #: ROOM_AMBIENT) n·l̂)`` ≈ 0.64 of its lit colour (:mod:`jaxmocap.synth.scene`); partial shadows lie between.
-ROOM_SHADOW = fg.ShadowParams(alpha_min=0.5, alpha_max=0.9, cd_max=4.0)
+ROOM_SHADOW = fg.PLATE_SHADOW
 
 
 def subtractors(

@@ -103,9 +103,11 @@ def median_background(source, frames: Sequence[int], num: int = 15) -> list[np.n
 class FeatureBuilder:
     """Frames → :class:`TrackObservation` (image maps through :class:`jaxmocap.features.FeatureExtractor`).
 
-    ``foreground``: ``mask`` (the source's masks), ``median`` (static background: :func:`median_background`),
-    ``mog2`` (adaptive; stateful, so not reproduced exactly by ``--resume``),
-    ``none``; ``auto`` = ``mask`` when the source has masks, else ``median``.
+    ``foreground``: ``mask`` (the source's masks), ``plate`` (static background against each camera's recorded
+    empty-scene plate, :func:`jaxmocap.features.foreground.plate_background`: threshold from the plate's own
+    sensor noise, shadow removal), ``median`` (static background: :func:`median_background`), ``mog2``
+    (adaptive; stateful, so not reproduced exactly by ``--resume``), ``none``; ``auto`` = ``mask`` when the source
+    has masks, else ``plate`` when it has plates, else ``median``.
     """
 
     def __init__(
@@ -119,8 +121,14 @@ class FeatureBuilder:
     ):
         if foreground not in FOREGROUNDS:
             raise ValueError(f"unknown foreground {foreground!r}; choose one of {', '.join(FOREGROUNDS)}")
+        plates = getattr(source, "plate_files", None)
         if foreground == "auto":
-            foreground = "mask" if source.has_masks else "median"
+            foreground = "mask" if source.has_masks else "plate" if plates else "median"
+        if foreground == "plate" and not plates:
+            raise ValueError(
+                "--foreground plate needs an empty-scene image per camera (a sequence folder's "
+                "views/<camera>/background.png, or --plates with --videos)"
+            )
         if foreground == "mask" and not source.has_masks:
             raise ValueError(
                 "--foreground mask needs an input with foreground masks (a sequence folder's mask/)"
@@ -132,7 +140,13 @@ class FeatureBuilder:
         # IROS 2007's 3D head / hand blobs: skin blobs matched across the first pair
         blobs = "blobs3d" in names
         cfg = FeatureConfig(
-            foreground={"mask": "none", "median": "static", "mog2": "mog2", "none": "none"}[foreground],
+            foreground={
+                "mask": "none",
+                "plate": "static",
+                "median": "static",
+                "mog2": "mog2",
+                "none": "none",
+            }[foreground],
             edges=bool(names & {"edges", "edge_fraction"}),
             edge_dt="edge_distance" in names,
             skin="rgb" if ("skin" in reads or blobs) else None,
@@ -148,6 +162,8 @@ class FeatureBuilder:
         self.needs_depth = "depth" in reads
         self.num_samples = int(num_samples)
         self.coverage = "coverage" in names
+        if foreground == "plate":
+            self.extractor.set_plates(source.plates())
         if foreground == "median":
             frames = list(range(source.num_frames)) if frames is None else list(frames)
             self.extractor.set_background(median_background(source, frames))

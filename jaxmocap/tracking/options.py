@@ -274,6 +274,7 @@ INPUT_KEYS = {
     "calibration": "path",
     "keypoints": "paths",
     "depth": "paths",
+    "plates": "paths",
 }
 #: Keys of a configuration file about the run itself rather than the tracker.
 RUN_KEYS = {"out": "path", "quiet": bool}
