@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from jaxmocap.errors import MocapInputError
+from jaxmocap.features.bands import LIME, band_mask
 from jaxmocap.features.blobs import skin_blobs, stereo_blobs
 from jaxmocap.features.colour import rgb_float
 from jaxmocap.features.edges import edge_map
@@ -79,6 +80,10 @@ class FeatureConfig:
     blob_threshold: float = 0.5
     blob_min_area: int = 20
     blob_max_epipolar: float = 5.0
+    #: what the 3D blobs are made of: ``"skin"`` (head and hands, Fontmarty et al.) or ``"bands"`` (coloured wrist
+    #: bands, Li & Kulić: :func:`jaxmocap.features.bands.band_mask` with ``band_hsv``)
+    blob_source: str = "skin"
+    band_hsv: tuple[tuple[int, int, int], tuple[int, int, int]] = LIME
     # stereo
     sgbm: tuple[tuple[str, int], ...] = field(default=(("num_disparities", 64), ("block_size", 5)))
 
@@ -87,8 +92,10 @@ class FeatureConfig:
             raise ValueError(f"foreground must be one of {FOREGROUND_METHODS}, got {self.foreground!r}")
         if self.skin not in SKIN_METHODS:
             raise ValueError(f"skin must be one of {SKIN_METHODS}, got {self.skin!r}")
-        if self.blobs and self.skin is None:
-            raise ValueError("blobs need a skin model (skin='rgb' or 'hs')")
+        if self.blob_source not in ("skin", "bands"):
+            raise ValueError(f"blob_source must be 'skin' or 'bands', got {self.blob_source!r}")
+        if self.blobs and self.blob_source == "skin" and self.skin is None:
+            raise ValueError("skin blobs need a skin model (skin='rgb' or 'hs')")
 
     @property
     def mask_cleaning(self) -> dict[str, int]:
@@ -248,9 +255,20 @@ class FeatureExtractor:
         blobs3d = conf = None
         if c.blobs:
             i, j = c.stereo_pair
-            pair = [
-                skin_blobs(maps["skin"][v], c.blob_threshold, c.max_blobs, c.blob_min_area) for v in (i, j)
-            ]
+            if (
+                c.blob_source == "bands"
+            ):  # a band is a few pixels wide: keep it whole (no opening), small ones too
+                pair = [
+                    skin_blobs(
+                        band_mask(frames[v], c.band_hsv), 0.5, c.max_blobs, 4, open_size=1, close_size=3
+                    )
+                    for v in (i, j)
+                ]
+            else:
+                pair = [
+                    skin_blobs(maps["skin"][v], c.blob_threshold, c.max_blobs, c.blob_min_area)
+                    for v in (i, j)
+                ]
             blobs3d, conf, _ = stereo_blobs(
                 self.rig, pair, (i, j), c.max_blobs, max_epipolar=c.blob_max_epipolar
             )

@@ -137,8 +137,11 @@ class FeatureBuilder:
         self.source = source
         names = set(cue_names)
         reads = {f for n in names for f in cues_mod.REQUIRES.get(n, ())}
-        # IROS 2007's 3D head / hand blobs: skin blobs matched across the first pair
-        blobs = "blobs3d" in names
+        # IROS 2007's 3D head / hand blobs: skin blobs matched across the first pair; Li & Kulić's wrist bands
+        bands = "wristband" in names
+        blobs = "blobs3d" in names or bands
+        if bands and "blobs3d" in names:
+            raise ValueError("the blobs3d and wristband cues both read the 3D blobs: choose one")
         cfg = FeatureConfig(
             foreground={
                 "mask": "none",
@@ -149,9 +152,10 @@ class FeatureBuilder:
             }[foreground],
             edges=bool(names & {"edges", "edge_fraction"}),
             edge_dt="edge_distance" in names,
-            skin="rgb" if ("skin" in reads or blobs) else None,
+            skin="rgb" if ("skin" in reads or (blobs and not bands)) else None,
             rgb="rgb" in reads,
             blobs=blobs,
+            blob_source="bands" if bands else "skin",
             downsample=int(downsample),
         )
         self.extractor = _Extractor(source.rig, cfg)

@@ -17,7 +17,7 @@ def test_preset_values_lie_under_explicit_options():
     o = TrackOptions.from_preset("li-kulic")
     assert (o.preset, o.model, o.filter, o.layers) == ("li-kulic", "full25", "partitioned", 1)
     assert o.particles == LI_KULIC_COUNTS
-    assert o.cues == "depth,edge_fraction,colour_template,ground"
+    assert o.cues == "depth,edge_fraction,colour_template,wristband,ground"
     o = TrackOptions.from_preset("li-kulic", particles=300, cues="depth:2,edge_fraction", seed=3)
     assert (o.particles, o.cues, o.seed, o.filter) == (300, "depth:2,edge_fraction", 3, "partitioned")
     # another filter: the preset's per-partition counts and single layer are its filter's, so they go

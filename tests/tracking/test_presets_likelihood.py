@@ -71,7 +71,7 @@ def test_ten_partitions_in_the_papers_order_with_their_dofs(setup_obs):
     assert filt.groups == setup.groups and filt.counts == tuple(setup.num_particles)
     assert filt.schedule is None and filt.resampling == "systematic"
     # the cues of eq. 1-3 and the ground distance, each weighed as 100^(-d) (lambda = ln 100)
-    assert [n for n, _ in setup.cues] == ["depth", "edge_fraction", "colour_template", "ground"]
+    assert [n for n, _ in setup.cues] == ["depth", "edge_fraction", "colour_template", "wristband", "ground"]
     np.testing.assert_allclose(np.asarray(setup.likelihood.schedule), LN_A, rtol=1e-6)
     # track loss watches the whole body: the partitions' best energies summed (each weighs its own parts)
     top = -np.arange(1.0, 11.0)[:, None]  # (K, L) best log-likelihoods of a step

@@ -25,7 +25,7 @@ def test_li_kulic_preset_tracks_a_walk_from_the_detections(sequence, tmp_path):
         input=sequence, preset="li-kulic", init="ik", particles=50, seed=0, out=out, cache=False
     )
     assert res.config["preset"] == "li-kulic" and res.config["filter"] == "partitioned"
-    assert res.config["cues"] == "depth, edge_fraction, colour_template, ground"
+    assert res.config["cues"] == "depth, edge_fraction, colour_template, wristband, ground"
     run = json.loads((out / "run.json").read_text(encoding="utf-8"))
     assert run["options"]["preset"] == "li-kulic"
     assert res.summary["compilations"] == 1  # one step program for all ten partitions and every frame
