@@ -275,6 +275,13 @@ SCRIPTS: dict[str, Script] = {
     "accuracy": Script(
         "Tracking accuracy", "experiments/accuracy.py", writes=("accuracy.md",), fn=_accuracy, slow=True
     ),
+    "li_kulic": Script(
+        "Li & Kulic's tracker (--preset li-kulic): their errors, Table I, counts, ten partitions against six",
+        "experiments/li_kulic.py",
+        "--seeds 5 --size 320x240",
+        writes=("li_kulic.md",),
+        slow=True,
+    ),
     "hybrid": Script(
         "Hybrid vs APF",
         "experiments/hybrid_vs_apf.py",
