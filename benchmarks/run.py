@@ -275,6 +275,13 @@ SCRIPTS: dict[str, Script] = {
     "accuracy": Script(
         "Tracking accuracy", "experiments/accuracy.py", writes=("accuracy.md",), fn=_accuracy, slow=True
     ),
+    "lopez_mendez": Script(
+        "López Méndez Tables 7.1-7.2 with --preset lopez-mendez (frontal-lateral, adaptive background)",
+        "experiments/lopez_mendez.py",
+        "--runs 5",
+        writes=("lopez_mendez.md",),
+        slow=True,
+    ),
     "hybrid": Script(
         "Hybrid vs APF",
         "experiments/hybrid_vs_apf.py",

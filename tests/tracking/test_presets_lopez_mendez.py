@@ -82,6 +82,9 @@ def test_variant_needs_its_preset_and_explicit_cues_win():
     assert (o.filter, o.cues) == ("apf", ",".join(ALL))
     o = TrackOptions.from_preset("lopez-mendez", filter="m-apf", cues="foreground,edges:2")
     assert (o.filter, o.cues, o.particles) == ("m-apf", "foreground,edges:2", 200)
+    args = ["track", "seq", "--out", "o", "--foreground", "adaptive", "--count-modes"]
+    o = run_options(cli._track_values(parse(args)))
+    assert (o.foreground, o.count_modes, o.preset) == ("adaptive", True, None)
 
 
 @pytest.mark.slow
