@@ -48,7 +48,6 @@ os.environ.setdefault("JAX_PLATFORMS", "cpu")
 import common
 from scenes import SHARED_CMU, CachedTracker, PlateSource
 
-from jaxmocap.eval import metrics
 from jaxmocap.io.sources import FrameData, SequenceSource
 from jaxmocap.synth import generate as synth
 from jaxmocap.tracking.options import TrackOptions
@@ -94,17 +93,10 @@ def run_scheme(seq: pathlib.Path, scheme: str, runs: int, work: pathlib.Path, pa
         o = TrackOptions.from_preset(
             "lopez-mendez", filter=scheme, init="ik", particles=particles, overwrite=True, smooth="none"
         )
-        out = work / "track"
-        tr = CachedTracker(source, out, o, quiet=True)
-        gt_frames, gt = metrics.load_groundtruth(seq)
-        errors, fps = [], []
-        for s in range(runs):
-            tr.o.seed = s
-            summary = tr.run()
-            errors.append(metrics.evaluate([metrics.load_prediction(out)], gt, gt_frames)["overall_mean_mm"])
-            fps.append(summary.get("frames_per_s") or float("nan"))
-        steady = tr.step_seconds[1:] if len(tr.step_seconds) > 1 else tr.step_seconds
-        return {"errors": errors, "step_s": float(np.median(steady)), "run_fps": float(np.median(fps))}
+        tr = CachedTracker(source, work / "track", o, quiet=True)
+        errors, summaries = tr.run_seeds(runs, seq)
+        fps = [r.get("frames_per_s") or float("nan") for r in summaries]
+        return {"errors": errors, "step_s": tr.median_step_s, "run_fps": float(np.median(fps))}
     finally:
         source.close()
 
