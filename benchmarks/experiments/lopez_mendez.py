@@ -5,7 +5,8 @@ Scenario (every choice stated here):
 
 * motions with arm work: the CMU Charleston dance (arms swinging), Bandai-Namco's "raise up left hand" and the
   CMU walk 02_01 (arm swing) — the thesis' reaching / picking up / drinking clips are not in the project's data;
-  source frames ``--frames`` of each (default 30 frames at 30 fps), rendered by
+  30 frames at 30 fps of each (the dance and the walk: source frames 150:270 at 120 fps; the hand: 12:42 of its 55
+  frames at 30 fps, the raise and the lowering), rendered by
   :func:`jaxmocap.synth.generate.synthesize` with the ``frontal-lateral`` rig at ``--size`` (default 160×120: the
   machine is 2 shared cores) in the 3D room (the body casts its shadow), low clutter, a ±10 % illumination change,
   motion blur over 2 source frames, sensor noise 0.01;
@@ -53,7 +54,15 @@ from jaxmocap.synth import generate as synth
 from jaxmocap.tracking.options import TrackOptions
 
 RESULTS = common.RESULTS / "lopez_mendez.md"
-SHARED_BANDAI = SHARED_CMU.parent / "bandai"
+#: the shared motion capture (``shared/data/mocap`` beside the checkout, or beside a worktree's parent folder)
+MOCAP = next(
+    (
+        d
+        for d in (SHARED_CMU.parent, *(p / "shared" / "data" / "mocap" for p in common.ROOT.parents))
+        if d.is_dir()
+    ),
+    SHARED_CMU.parent,
+)
 SCHEMES = ("apf", "m-apf", "fbapf", "fbapf2", "fbapf3", "apf-divergence")
 LABELS = dict(zip(SCHEMES, ("APF", "M-APF", "FBAPF", "FBAPF2", "FBAPF3", "APFdivergence"), strict=True))
 RENDER = dict(background="room", clutter="low", illumination=0.1, blur=2, noise=0.01)
@@ -62,12 +71,12 @@ RENDER = dict(background="room", clutter="low", illumination=0.1, blur=2, noise=
 def clips() -> list[tuple[str, object, dict]]:
     """``(name, motion, synthesize keywords)`` of the motions used (those whose files are present)."""
     out = []
-    dance = SHARED_CMU / "charleston1.amc"
+    dance = MOCAP / "cmu" / "charleston1.amc"
     if dance.is_file():
-        out.append(("charleston", dance, dict(asf=SHARED_CMU / "charleston.asf", frames="150:270")))
-    hand = SHARED_BANDAI / "dataset-2_raise-up-left-hand_normal_001.bvh"
+        out.append(("charleston", dance, dict(asf=MOCAP / "cmu" / "charleston.asf", frames="150:270")))
+    hand = MOCAP / "bandai" / "dataset-2_raise-up-left-hand_normal_001.bvh"
     if hand.is_file():
-        out.append(("raise left hand", hand, dict(frames="20:50")))
+        out.append(("raise left hand", hand, dict(frames="12:42")))
     out.append(("walk 02_01", "demo", dict(frames="150:270")))
     return out
 
