@@ -1,8 +1,8 @@
 """Frames → what the filter step sees of one frame (:class:`TrackObservation`).
 
 :class:`FeatureBuilder` runs :class:`jaxmocap.features.FeatureExtractor` (foreground from the sequence's masks, a
-median background, MOG2, the adaptive Gaussian with shadow removal or none; edges; distance transform; depth; the colour map, skin probability and
-triangulated skin blobs when a cue reads them), adds the silhouette samples of the ``coverage`` cue
+median background, MOG2, the adaptive Gaussian with shadow removal or none; edges; distance transform; depth; the
+colour map, skin probability and triangulated skin blobs when a cue reads them), adds the silhouette samples of the ``coverage`` cue
 (:func:`jaxmocap.likelihood.coverage.silhouette_samples`) and a placeholder for the detection-driven proposal centre.
 """
 
