@@ -282,6 +282,13 @@ SCRIPTS: dict[str, Script] = {
         writes=("li_kulic.md",),
         slow=True,
     ),
+    "lopez_mendez": Script(
+        "López Méndez Tables 7.1-7.2 with --preset lopez-mendez (frontal-lateral, adaptive background)",
+        "experiments/lopez_mendez.py",
+        "--runs 5",
+        writes=("lopez_mendez.md",),
+        slow=True,
+    ),
     "hybrid": Script(
         "Hybrid vs APF",
         "experiments/hybrid_vs_apf.py",

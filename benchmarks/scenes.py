@@ -151,6 +151,26 @@ class CachedTracker(tracker.Tracker):
             self._obs_cache[t] = super()._observe(t)
         return self._obs_cache[t]
 
+    def run_seeds(self, seeds: int, seq_dir) -> tuple[list[float], list[dict]]:
+        """Runs with seeds ``0 … seeds − 1``: each run's error against the sequence's ground truth (thesis eq. 7.1
+        averaged over frames, mm) and its summary."""
+        from jaxmocap.eval import metrics
+
+        gt_frames, gt = metrics.load_groundtruth(seq_dir)
+        errors, summaries = [], []
+        for s in range(seeds):
+            self.o.seed = s
+            summaries.append(self.run())
+            rep = metrics.evaluate([metrics.load_prediction(self.out)], gt, gt_frames)
+            errors.append(float(rep["overall_mean_mm"]))
+        return errors, summaries
+
+    @property
+    def median_step_s(self) -> float:
+        """The median compiled-step time, the first step (which may compile) left out."""
+        steady = self.step_seconds[1:] if len(self.step_seconds) > 1 else self.step_seconds
+        return float(np.median(steady))
+
 
 @dataclasses.dataclass
 class Config:

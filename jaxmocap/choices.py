@@ -25,7 +25,7 @@ SINGLE_LAYER = ("sir", "icondensation", "partitioned")
 GRADIENT_FILTERS = ("hybrid", "apf-refine")
 #: Filters that split the DOFs into groups, one particle count per group.
 PARTITIONED = ("partitioned", "hierarchical")
-FOREGROUNDS = ("auto", "mask", "plate", "median", "mog2", "none")
+FOREGROUNDS = ("auto", "mask", "plate", "median", "mog2", "adaptive", "none")
 #: Layouts of 2D keypoint files (:mod:`jaxmocap.io.keypoints`).
 KEYPOINT_LAYOUTS = ("BODY_25", "BODY_25B", "HALPE_26", "COCO_17", "COCO_133", "MEDIAPIPE_33")
 

@@ -594,7 +594,12 @@ def _add_tracking_commands(sub) -> None:
         "in --config override the preset's (README: Presets)",
     )
     tr.add_argument("--model", choices=_MODELS, help="body model (default: the body file's, else full25)")
-    tr.add_argument("--filter", choices=_FILTERS, help="particle filter (default apf)")
+    tr.add_argument(
+        "--filter",
+        choices=(*_FILTERS, *presets.VARIANTS),
+        help="particle filter (default apf); a preset's variant with its --preset: "
+        + ", ".join(f"{v} ({', '.join(p)})" for v, p in presets.VARIANTS.items()),
+    )
     tr.add_argument(
         "--particles",
         type=_particle_counts,
@@ -630,6 +635,13 @@ def _add_tracking_commands(sub) -> None:
         "--on-bad-frame",
         choices=("skip", "stop"),
         help="a frame that does not decode: skip it with a warning (default) or stop",
+    )
+    tr.add_argument(
+        "--count-modes",
+        action="store_true",
+        default=None,
+        help="record the number of modes (EM/BIC) of the particle set after each annealing layer in "
+        "diagnostics.json (APF-based filters; slower)",
     )
     tr.add_argument(
         "--overlay",

@@ -24,7 +24,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["Mixture", "bic", "count_modes", "fit", "log_likelihood", "num_parameters"]
+__all__ = ["Mixture", "bic", "count_layer_modes", "count_modes", "fit", "log_likelihood", "num_parameters"]
 
 
 class Mixture(NamedTuple):
@@ -176,3 +176,51 @@ def count_modes(
         scores.append(bic(m, n, d))
     scores = np.asarray(scores)
     return int(np.argmin(scores)) + 1, fits, scores
+
+
+def count_layer_modes(
+    particles,
+    log_weights,
+    rng: np.random.Generator,
+    dims: int = 2,
+    max_components: int = 4,
+    *,
+    restarts: int = 2,
+    max_iter: int = 100,
+    tol: float = 1e-4,
+    reg: float = 0.05,
+) -> list[int]:
+    """Modes of each annealing layer's particle set (López Méndez §5.2.1) by :func:`count_modes`.
+
+    ``particles (L, N, D)``, ``log_weights (L, N)`` (normalised or not): per layer, ``N`` particles are drawn in
+    proportion to the weights (systematic resampling: the set the next layer starts from), each DOF is
+    standardised over that set (metres and radians become comparable; a DOF that does not vary is left out), and
+    the modes are counted by BIC on the first ``dims`` principal components (in all ``D`` dimensions a full
+    covariance costs ``D (D + 3) / 2`` parameters per component, which a few hundred particles cannot pay for).
+    The fit is coarser than :func:`fit`'s defaults (fewer starts and iterations: it runs per frame when a
+    tracking run asks for it) and its covariance floor larger (``reg`` 0.05 of the mean variance: a resampled set
+    is full of copies, on which a tight component would otherwise buy likelihood). Returns ``L`` counts in
+    ``1 … max_components``.
+    """
+    fit_kw = dict(restarts=restarts, max_iter=max_iter, tol=tol, reg=reg)
+    X = np.asarray(particles, np.float64)
+    lw = np.asarray(log_weights, np.float64)
+    if X.ndim != 3 or lw.shape != X.shape[:2]:
+        raise ValueError(f"need particles (L, N, D) and log_weights (L, N), got {X.shape} and {lw.shape}")
+    out = []
+    for x, w in zip(X, lw, strict=True):
+        w = np.where(np.isfinite(w), w, -np.inf)
+        p = np.exp(w - np.max(w))
+        p /= p.sum()
+        n = len(p)
+        picks = np.minimum(np.searchsorted(np.cumsum(p), (rng.uniform() + np.arange(n)) / n), n - 1)
+        s = x[picks]
+        sd = s.std(axis=0)
+        z = (s[:, sd > 1e-9] - s[:, sd > 1e-9].mean(axis=0)) / sd[sd > 1e-9]
+        if z.shape[1] == 0:
+            out.append(1)
+            continue
+        _, _, vt = np.linalg.svd(z, full_matrices=False)
+        k, _, _ = count_modes(z @ vt[: min(dims, z.shape[1])].T, rng, max_components, **fit_kw)
+        out.append(int(k))
+    return out

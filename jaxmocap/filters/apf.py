@@ -57,7 +57,8 @@ class APF(icondensation.ImportanceOptions, base.FilterBase):
     number of layers and bisection settings, ``first_layer`` (``"dynamics"`` or ``"icondensation"``), the other
     :class:`~jaxmocap.filters.icondensation.ImportanceOptions` (``dynamics_fraction``, ``detection_fraction``,
     ``proposal_centre``, ``weighting``),
-    ``resampling``, ``limit_mode``, ``circular``, ``recovery``, ``recovery_widen``.
+    ``resampling``, ``limit_mode``, ``circular``, ``recovery``, ``recovery_widen``, ``keep_layers`` (return the
+    weighted set after each layer in :attr:`Info.layer_sets`).
     """
 
     num_particles: int
@@ -65,6 +66,7 @@ class APF(icondensation.ImportanceOptions, base.FilterBase):
     first_layer: str = "dynamics"
     prior_mean: jnp.ndarray | None = None
     prior_std: jnp.ndarray | None = None
+    keep_layers: bool = False
 
     def __post_init__(self):
         if self.first_layer not in FIRST_LAYERS:
@@ -108,7 +110,8 @@ class APF(icondensation.ImportanceOptions, base.FilterBase):
             X, log_w, stats, rec = self._weigh(
                 k_rec, X, jnp.zeros((n,), dtype), observation, layer, beta_prev, surv_prev, state.estimate
             )
-            return (X, log_w, stats.beta, stats.survival_rate, recovered | rec, rec), stats
+            kept = (X, log_w) if self.keep_layers else None
+            return (X, log_w, stats.beta, stats.survival_rate, recovered | rec, rec), (stats, kept)
 
         k_first, k_w0, k_layers = jax.random.split(key, 3)
         zero, one = jnp.zeros((), dtype), jnp.ones((), dtype)
@@ -127,16 +130,20 @@ class APF(icondensation.ImportanceOptions, base.FilterBase):
             first = 0
         layers = jnp.arange(first, self.num_layers, dtype=jnp.int32)
         keys = jax.random.split(k_layers, self.num_layers)[first:]
-        (X, log_w, _, _, recovered, last_recovered), all_stats = jax.lax.scan(layer_fn, carry, (keys, layers))
+        (X, log_w, _, _, recovered, last_recovered), (all_stats, sets) = jax.lax.scan(
+            layer_fn, carry, (keys, layers)
+        )
         if first:
             all_stats = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), stats0, all_stats)
+            if self.keep_layers:
+                sets = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), carry[:2], sets)
 
         estimate = base.weighted_mean(X, log_w, self.circular)
         # a recovery in the last layer leaves a re-initialised cloud: report the previous estimate
         if self.recovery == "reinit":
             estimate = jnp.where(last_recovered, state.estimate, estimate)
         best = X[jnp.argmax(log_w)]
-        return State(X, log_w, estimate), Info(estimate, best, all_stats, recovered)
+        return State(X, log_w, estimate), Info(estimate, best, all_stats, recovered, sets)
 
 
 base.register_filter(

@@ -384,13 +384,16 @@ class Info(NamedTuple):
     ``estimate (D,)``: the filter's output (weighted mean); ``best (D,)``: the particle of largest final weight;
     ``layers``: :class:`LayerStats` with a leading layer axis ``(L,)`` (``(1,)`` for single-layer filters, ``(K, L)``
     for partitioned ones); ``recovered``: True when some weighting had no finite log-weight and the filter fell back
-    (see :func:`recover`).
+    (see :func:`recover`); ``layer_sets``: None, or (an annealed filter built with ``keep_layers``) the weighted
+    set after each layer, ``(particles (L, N, D), log_weights (L, N))`` (:func:`jaxmocap.eval.mixtures.
+    count_layer_modes`).
     """
 
     estimate: jnp.ndarray
     best: jnp.ndarray
     layers: LayerStats
     recovered: jnp.ndarray
+    layer_sets: tuple | None = None
 
 
 def init_state(

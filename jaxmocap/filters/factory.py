@@ -122,6 +122,7 @@ def make_filter(
     prior_std: np.ndarray,
     survival_target: float = 0.5,
     groups: Sequence[Sequence[int]] | None = None,
+    keep_layers: bool = False,
 ):
     """Filter ``name`` (:data:`FILTERS`) on ``loglik(X, observation, layer) -> (N,)``.
 
@@ -135,7 +136,9 @@ def make_filter(
     for every partition or a sequence of one count per partition (Li & Kulić on ``full25``: torso 1000, head 200,
     each arm and leg 350; the other filters take an int). ``hybrid`` is the APF with
     gradient moves (:data:`HYBRID_MOVE`) and ``apf-refine`` the APF whose estimate is refined by gradient ascent
-    (:class:`jaxmocap.filters.hybrid.HybridAPF`); both need ``loglik`` differentiable in ``X``.
+    (:class:`jaxmocap.filters.hybrid.HybridAPF`); both need ``loglik`` differentiable in ``X``. ``keep_layers``:
+    the APF-based filters (``apf``, ``iapf``, ``fbapf*``, ``m-apf``) return each layer's weighted set in
+    ``Info.layer_sets`` (the others ignore it).
     """
     if name not in FILTERS:
         raise ValueError(f"unknown filter {name!r}; choose one of {', '.join(FILTERS)}")
@@ -183,6 +186,7 @@ def make_filter(
             sched,
             first_layer="icondensation",
             proposal_centre=centre,
+            keep_layers=keep_layers,
             **prior,
             **common,
         )
@@ -191,4 +195,4 @@ def make_filter(
             return HybridAPF.refined(loglik, std, num_particles, sched, **common)
         move = GradientMove(**{**HYBRID_MOVE, "best_k": min(HYBRID_MOVE["best_k"], num_particles)})
         return HybridAPF(loglik, std, num_particles, sched, move=move, **common)
-    return APF(loglik, std, num_particles, sched, **common)
+    return APF(loglik, std, num_particles, sched, keep_layers=keep_layers, **common)

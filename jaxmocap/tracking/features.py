@@ -1,8 +1,8 @@
 """Frames → what the filter step sees of one frame (:class:`TrackObservation`).
 
 :class:`FeatureBuilder` runs :class:`jaxmocap.features.FeatureExtractor` (foreground from the sequence's masks, a
-median background, MOG2 or none; edges; distance transform; depth; the colour map, skin probability and
-triangulated skin blobs when a cue reads them), adds the silhouette samples of the ``coverage`` cue
+median background, MOG2, the adaptive Gaussian with shadow removal or none; edges; distance transform; depth; the
+colour map, skin probability and triangulated skin blobs when a cue reads them), adds the silhouette samples of the ``coverage`` cue
 (:func:`jaxmocap.likelihood.coverage.silhouette_samples`) and a placeholder for the detection-driven proposal centre.
 """
 
@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxmocap.errors import MocapInputError
+from jaxmocap.features.foreground import ShadowParams
 from jaxmocap.features.observation import Observation
 from jaxmocap.features.pipeline import FeatureConfig, FeatureExtractor
 from jaxmocap.features.resample import downsample as downsample_image
@@ -25,7 +26,11 @@ from jaxmocap.likelihood import cues as cues_mod
 from jaxmocap.likelihood.coverage import silhouette_samples
 from jaxmocap.tracking.options import FOREGROUNDS
 
-__all__ = ["FeatureBuilder", "TrackObservation", "median_background"]
+__all__ = ["ADAPTIVE_SHADOW", "FeatureBuilder", "TrackObservation", "median_background"]
+
+#: The shadow test of ``--foreground adaptive``: darker copies of the background colour (0.4 ≤ α < 1) are shadows,
+#: and brighter ones up to α < 1.2 (a global illumination change) background too; chromaticity within 6 σ.
+ADAPTIVE_SHADOW = ShadowParams(alpha_min=0.4, alpha_max=1.2, cd_max=6.0)
 
 
 class TrackObservation(NamedTuple):
@@ -103,11 +108,20 @@ def median_background(source, frames: Sequence[int], num: int = 15) -> list[np.n
 class FeatureBuilder:
     """Frames → :class:`TrackObservation` (image maps through :class:`jaxmocap.features.FeatureExtractor`).
 
-    ``foreground``: ``mask`` (the source's masks), ``plate`` (static background against each camera's recorded
-    empty-scene plate, :func:`jaxmocap.features.foreground.plate_background`: threshold from the plate's own
-    sensor noise, shadow removal), ``median`` (static background: :func:`median_background`), ``mog2``
-    (adaptive; stateful, so not reproduced exactly by ``--resume``), ``none``; ``auto`` = ``mask`` when the source
-    has masks, else ``plate`` when it has plates, else ``median``.
+    ``foreground``: ``mask`` (the source's masks), ``median`` (static background: :func:`median_background`),
+    ``mog2`` (adaptive; stateful, so not reproduced exactly by ``--resume``), ``adaptive`` (López Méndez's
+    adaptive single Gaussian per pixel and channel, eq. 4.1–4.2, with shadow removal:
+    :class:`jaxmocap.features.foreground.GaussianBackground` with :class:`~jaxmocap.features.foreground.ShadowParams`,
+    its mean started from :func:`median_background` and its σ from the configuration's sensor noise
+    ``noise_std``, 4 grey levels — the shadow test's chromaticity bound is in units of σ; only pixels classified
+    as background are learned (``selective``: a subject passing over a pixel would inflate its σ, and with it the
+    shadow test's bound, until the subject itself passes for a shadow); the shadow test :data:`ADAPTIVE_SHADOW`
+    also takes brighter copies of the background (a global illumination change) for background, so that the
+    model learns them; stateful like ``mog2``),
+    ``plate`` (static background against each camera's recorded empty-scene plate,
+    :func:`jaxmocap.features.foreground.plate_background`: threshold from the plate's own sensor noise, shadow
+    removal), ``none``; ``auto`` = ``mask`` when the source has masks, else ``plate`` when it has plates, else
+    ``median``.
     """
 
     def __init__(
@@ -148,8 +162,10 @@ class FeatureBuilder:
                 "plate": "static",
                 "median": "static",
                 "mog2": "mog2",
+                "adaptive": "gaussian",
                 "none": "none",
             }[foreground],
+            shadow=ADAPTIVE_SHADOW if foreground == "adaptive" else None,
             edges=bool(names & {"edges", "edge_fraction"}),
             edge_dt="edge_distance" in names,
             skin="rgb" if ("skin" in reads or (blobs and not bands)) else None,
@@ -168,9 +184,16 @@ class FeatureBuilder:
         self.coverage = "coverage" in names
         if foreground == "plate":
             self.extractor.set_plates(source.plates())
-        if foreground == "median":
+        if foreground in ("median", "adaptive"):
             frames = list(range(source.num_frames)) if frames is None else list(frames)
-            self.extractor.set_background(median_background(source, frames))
+            plates = median_background(source, frames)
+            if foreground == "median":
+                self.extractor.set_background(plates)
+            else:  # the adaptive model starts from the median plate, not from the first frame (with the subject)
+                f = cfg.downsample
+                for bg, plate in zip(self.extractor.backgrounds, plates, strict=True):
+                    bg.init_std, bg.selective = cfg.noise_std, True
+                    bg.initialise(downsample_image(plate, f))
 
     def __call__(self, fd: FrameData, dof: int) -> tuple[TrackObservation, np.ndarray]:
         """The observation (with a placeholder centre) and the host foreground masks ``(V, H, W)`` bool."""

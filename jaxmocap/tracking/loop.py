@@ -39,7 +39,8 @@ with its median ``q_ref`` over the first frames after the initialisation: the tr
 detection (``setup.reinit_mean``) with ``reinit_widen`` times the diffusion spread. A setup may define ``q_t`` itself
 (``setup.quality(loglik_max)`` of the step's per-layer maxima: a likelihood restricted to each partition's body
 parts sums the partitions' best energies). Every frame's record in
-``diagnostics.json`` has ``quality``, ``lost``, ``reinitialised`` and ``reinit_source``. A setup without
+``diagnostics.json`` has ``quality``, ``lost``, ``reinitialised`` and ``reinit_source`` (and ``modes``, one count per
+layer, with ``count_modes``: :func:`jaxmocap.eval.mixtures.count_layer_modes`). A setup without
 ``track_loss`` (PARSEC's) never loses the track.
 """
 
@@ -59,6 +60,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxmocap.errors import MocapInputError
+from jaxmocap.eval.mixtures import count_layer_modes
 from jaxmocap.filters.base import State
 from jaxmocap.filters.factory import particles_text
 from jaxmocap.io import export
@@ -459,6 +461,8 @@ class TrackingLoop:
                     seconds=time.monotonic() - t_frame,
                     layers=layer_records(info.layers),
                 )
+                if getattr(info, "layer_sets", None) is not None:  # --count-modes (López Méndez §5.2.1)
+                    record["modes"] = count_layer_modes(*info.layer_sets, np.random.default_rng(t))
                 after = (t, state, loss.snapshot(), dict(stats)) if setup.resumable else None
                 writer.submit(functools.partial(write_frame, t, x, joints, record, after))
                 if stats["first_frame_s"] is None:

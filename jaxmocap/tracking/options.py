@@ -187,7 +187,9 @@ class TrackOptions:
     (:func:`jaxmocap.io.calibration.check_units`); ``preset``: a named configuration of
     :mod:`jaxmocap.tracking.presets` — its partitions, λ table and cue parameters are read from it by the setup,
     while its option values are applied by :meth:`from_preset` (or :func:`jaxmocap.api.run_options`), under the
-    options given explicitly.
+    options given explicitly; ``count_modes``: record in each frame's diagnostics the number of modes of the
+    particle set after each annealing layer (:func:`jaxmocap.eval.mixtures.count_layer_modes`; APF-based filters;
+    about 0.1 s of host time per layer; not part of :meth:`identity`).
     """
 
     preset: str | None = None
@@ -219,6 +221,7 @@ class TrackOptions:
     bvh_units: str = "cm"
     keypoint_layout: str = "auto"
     calibration_units: str = "auto"
+    count_modes: bool = False
 
     @classmethod
     def from_preset(cls, name: str, **options) -> TrackOptions:

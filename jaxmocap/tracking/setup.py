@@ -358,6 +358,7 @@ class TrackSetup:
             prior_std=3.0 * self.std,
             survival_target=self.o.survival_target,
             groups=self.groups,
+            keep_layers=bool(self.o.count_modes),
         )
 
     def compile_arguments(self, key, obs):

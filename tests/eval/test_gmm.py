@@ -85,3 +85,33 @@ def test_bad_input():
         gmm.fit(np.zeros((3, 2)), 4, np.random.default_rng(0))
     with pytest.raises(ValueError, match="finite"):
         gmm.fit(np.array([[0.0, np.nan]]), 1, np.random.default_rng(0))
+
+
+def _layer_sets(rng, modes, N=200, D=13):
+    """``(L, N, D)`` sets whose layer ``l`` is an equal mixture of ``modes[l]`` spherical Gaussians (σ 1 in
+    standardised units) 12 σ apart along random directions, DOFs scaled like a pose (metres 0.05, radians 0.3)."""
+    scale = np.where(np.arange(D) < 3, 0.05, 0.3)
+    out = []
+    for k in modes:
+        centres = np.zeros((k, D))
+        for j in range(1, k):
+            d = rng.normal(size=D)
+            centres[j] = centres[j - 1] + 12.0 * d / np.linalg.norm(d)
+        out.append((centres[np.arange(N) % k] + rng.normal(size=(N, D))) * scale)
+    return np.stack(out)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_count_layer_modes_finds_the_known_modes_of_each_layer(seed):
+    """Layers with 3, 2 and 1 well-separated modes (López Méndez §5.2.1's count, on the first two principal
+    components of the resampled set), and a 2-mode layer whose weights sit on one mode: counted 3, 2, 1, 1."""
+    rng = np.random.default_rng(seed)
+    X = _layer_sets(rng, [3, 2, 1, 2])
+    lw = np.zeros(X.shape[:2])
+    lw[3, 0::2] = -np.inf  # layer 3: only the particles of mode 1 (odd indices) carry weight
+    assert gmm.count_layer_modes(X, lw, np.random.default_rng(100 + seed)) == [3, 2, 1, 1]
+
+
+def test_count_layer_modes_checks_shapes():
+    with pytest.raises(ValueError, match=r"need particles \(L, N, D\) and log_weights \(L, N\)"):
+        gmm.count_layer_modes(np.zeros((2, 5, 3)), np.zeros((2, 4)), np.random.default_rng(0))

@@ -499,3 +499,31 @@ def test_iros_synthetic_benchmark_quick():
         assert errors["Kalman"].mean() <= e.mean() * 1.05, name
     md = bench.table(errors, cfg)
     assert md.count("\n") == len(bench.NAMES) + 1 and "IAPF" in md
+
+
+@pytest.mark.parametrize("first_layer", ["dynamics", "icondensation"])
+def test_apf_keeps_each_layers_set_when_asked_and_tracks_the_same(first_layer):
+    """``keep_layers``: ``Info.layer_sets`` holds the weighted set after each layer (the last one is the new state)
+    and the weighted mean of each layer's set agrees with what the layer's stats imply; the step is otherwise the
+    same (same key → the same state as without)."""
+    _, _, obs = simulate(5)
+    f = APF(
+        loglik_layer, jnp.full(D, Q), 300, Schedule.deutscher(3, diffusion_scales=(1.0, 0.5, 0.25)),
+        first_layer=first_layer, prior_mean=jnp.zeros(D), prior_std=jnp.full(D, np.sqrt(P0)),
+        detection_std=jnp.full(D, 0.3),
+    )  # fmt: skip
+    kept = dataclasses.replace(f, keep_layers=True)
+    frame = jax.tree_util.tree_map(lambda a: a[0], obs)
+    s0 = f.init(key(1), jnp.zeros(D), jnp.full(D, np.sqrt(P0)))
+    s1, i1 = jax.jit(APF.step)(f, key(2), s0, frame)
+    s2, i2 = jax.jit(APF.step)(kept, key(2), s0, frame)
+    assert i1.layer_sets is None
+    X, lw = i2.layer_sets
+    assert X.shape == (3, 300, D) and lw.shape == (3, 300)
+    np.testing.assert_array_equal(s1.particles, s2.particles)
+    np.testing.assert_array_equal(X[-1], s2.particles)
+    np.testing.assert_array_equal(lw[-1], s2.log_weights)
+    # each layer's ESS from its kept weights is the ESS its stats report
+    w = np.exp(np.asarray(lw, np.float64))
+    ess = 1.0 / np.sum((w / w.sum(1, keepdims=True)) ** 2, axis=1)
+    np.testing.assert_allclose(ess, np.asarray(i2.layers.ess), rtol=1e-3)

@@ -29,7 +29,7 @@ def test_preset_values_lie_under_explicit_options():
 
 
 def test_unknown_preset_is_a_clear_error():
-    with pytest.raises(ValueError, match="unknown preset 'nope'; choose one of li-kulic"):
+    with pytest.raises(ValueError, match="unknown preset .nope.; choose one of .*li-kulic"):
         TrackOptions.from_preset("nope")
     with pytest.raises(TypeError, match="unknown option"):
         TrackOptions.from_preset("li-kulic", partcles=3)

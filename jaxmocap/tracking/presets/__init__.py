@@ -12,23 +12,45 @@ A preset is plain data (:class:`Preset`):
   ``schedule`` (the λ table of :func:`jaxmocap.likelihood.compose.schedule_preset`), ``cue_params`` (static
   parameters per cue) and ``partition_cues`` (weigh each partition with the cues of its own body parts,
   :mod:`jaxmocap.likelihood.partition`).
+* ``filters`` — options per filter the preset knows (e.g. the cues of each annealing scheme), laid over
+  ``options`` when that filter is chosen and under what is given explicitly; a name there that is no filter is a
+  *variant* (:data:`VARIANTS`): ``--filter VARIANT`` with the preset runs the filter its entry names.
 
 Each paper's preset lives in a module of its own that puts the paper's parameters beside the values chosen here
-and lists what differs or is missing: :mod:`.li_kulic` (``li-kulic``).
+and lists what differs or is missing: :mod:`.li_kulic` (``li-kulic``), :mod:`.lopez_mendez` (``lopez-mendez``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 
-from jaxmocap.choices import PARTITIONED
+from jaxmocap.choices import FILTERS, PARTITIONED
 from jaxmocap.tracking.presets.base import FILTER_OPTIONS, Partition, Preset
 from jaxmocap.tracking.presets.li_kulic import LI_KULIC
+from jaxmocap.tracking.presets.lopez_mendez import LOPEZ_MENDEZ
 
-__all__ = ["LI_KULIC", "PRESETS", "Partition", "Preset", "apply", "get", "partition_layout"]
+__all__ = [
+    "LI_KULIC",
+    "LOPEZ_MENDEZ",
+    "PRESETS",
+    "VARIANTS",
+    "Partition",
+    "Preset",
+    "apply",
+    "get",
+    "partition_layout",
+]
 
 #: The presets by name.
 PRESETS: dict[str, Preset] = {LI_KULIC.name: LI_KULIC}
+PRESETS[LOPEZ_MENDEZ.name] = LOPEZ_MENDEZ
+
+#: The presets' variants (``--filter`` names that only a preset knows) → the presets that define them.
+VARIANTS: dict[str, tuple[str, ...]] = {}
+for _p in PRESETS.values():
+    for _name in _p.filters:
+        if _name not in FILTERS:
+            VARIANTS[_name] = (*VARIANTS.get(_name, ()), _p.name)
 
 
 def get(name: str) -> Preset:
@@ -42,15 +64,28 @@ def apply(values: Mapping[str, object]) -> dict:
     """``values`` (option names → values given explicitly) with the options of ``values["preset"]`` under them
     (module docstring); ``values`` itself when it names no preset."""
     name = values.get("preset")
+    chosen = values.get("filter")
     if name is None:
+        if chosen in VARIANTS:
+            raise ValueError(
+                f"filter {chosen!r} is a variant of preset {' / '.join(VARIANTS[chosen])}: add --preset "
+                f"{VARIANTS[chosen][0]}"
+            )
         return dict(values)
     preset = get(str(name))
+    if chosen in VARIANTS and chosen not in preset.filters:
+        raise ValueError(
+            f"preset {preset.name!r} has no variant {chosen!r} (it is one of {', '.join(VARIANTS[chosen])})"
+        )
     base = dict(preset.options)
-    chosen = values.get("filter")
-    if chosen is not None and chosen != base.get("filter"):
+    if chosen is not None and chosen != base.get("filter") and chosen not in preset.filters:
         for key in FILTER_OPTIONS:
             base.pop(key, None)
+    own = preset.filters.get(chosen if chosen is not None else base.get("filter"), {})
+    base.update(own)
     base.update({k: v for k, v in values.items() if v is not None})
+    if "filter" in own:  # a variant runs the filter its entry names
+        base["filter"] = own["filter"]
     return base
 
 

@@ -22,7 +22,10 @@ class Partition:
 
 @dataclasses.dataclass(frozen=True)
 class Preset:
-    """A named configuration (module docstring). ``model``: the body model the partitions are written for."""
+    """A named configuration (module docstring). ``model``: the body model the partitions are written for.
+    ``filters``: options per filter name, laid over ``options`` when that filter is chosen; a name that is not one
+    of :data:`jaxmocap.choices.FILTERS` is a *variant* of the preset (``--filter NAME`` with the preset) and its
+    entry names the filter it runs under ``"filter"``."""
 
     name: str
     options: Mapping[str, object]
@@ -31,6 +34,12 @@ class Preset:
     schedule: str | None = None
     cue_params: Mapping[str, Mapping[str, object]] = dataclasses.field(default_factory=dict)
     partition_cues: bool = False
+    filters: Mapping[str, Mapping[str, object]] = dataclasses.field(default_factory=dict)
 
     def __post_init__(self):
         object.__setattr__(self, "options", types.MappingProxyType(dict(self.options)))
+        object.__setattr__(
+            self,
+            "filters",
+            types.MappingProxyType({k: types.MappingProxyType(dict(v)) for k, v in self.filters.items()}),
+        )
