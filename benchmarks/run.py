@@ -348,6 +348,13 @@ SCRIPTS: dict[str, Script] = {
         writes=("pose2sim.md", "pose2sim_overlay.png"),
         env="JAX_PLATFORMS=cpu",
     ),
+    "pose2sim_loo": Script(
+        "Pose2Sim demo recording, leave one camera out: tracked from three, against their triangulation",
+        "experiments/pose2sim_track.py",
+        "--out /tmp/p2s_loo --leave-one-out",
+        writes=("pose2sim_loo.md",),
+        env="JAX_PLATFORMS=cpu",
+    ),
 }
 
 #: the benchmarks reported in RESULTS.md, run in this process by ``run.py``
