@@ -282,6 +282,12 @@ SCRIPTS: dict[str, Script] = {
         writes=("li_kulic.md",),
         slow=True,
     ),
+    "li_kulic_overlay": Script(
+        "Li & Kulic's tracker on the walk with and without the edge cue: the last frame",
+        "experiments/li_kulic.py",
+        "--overlay",
+        writes=("li_kulic_no_edges.png",),
+    ),
     "lopez_mendez": Script(
         "López Méndez Tables 7.1-7.2 with --preset lopez-mendez (frontal-lateral, adaptive background)",
         "experiments/lopez_mendez.py",
