@@ -228,6 +228,20 @@ class PlateSource(SequenceSource):
         return FrameData(fd.images, m, fd.depth, self.keypoints[t])
 
 
+class RecordingSource(PlateSource):
+    """A synthetic sequence as a recording gives it: the images, the empty-scene plates, the depth maps and the
+    simulated detections (:class:`PlateSource`'s), no masks: the tracker's own ``--foreground`` (``plate``,
+    ``adaptive`` …) segments the images. The ground truth stays for scoring."""
+
+    def __init__(self, root):
+        super().__init__(root)
+        self.has_masks = False
+        self.description = {**self.description, "foreground": "the tracker's"}
+
+    def read(self, t: int, masks: bool = True, depth: bool = True) -> FrameData:
+        return super().read(t, masks=False, depth=depth)
+
+
 def open_source(seq_dir, oracle: bool = False) -> SequenceSource:
     """The tracker's input for a synthetic sequence: :class:`PlateSource`, or with ``oracle`` the sequence as
     written (rendered masks, ground truth for initialisation)."""

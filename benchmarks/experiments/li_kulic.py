@@ -9,8 +9,8 @@ Scenario (every choice stated here):
   :func:`jaxmocap.synth.generate.synthesize` with the ``stereo`` rig (0.3 m baseline) at ``--size`` (default
   320×240), the photo background, sensor noise 0.01, lime wrist bands, the rendered depth with 2 cm noise as the
   depth maps (Li & Kulić simulated their depth the same way);
-* the input a recording has (:class:`Recording`): the images, the calibration, each view's empty-scene plate
-  (``views/<camera>/background.png``), the depth maps and the simulated BODY_25B detections; no mask, label or
+* the input a recording has (:class:`scenes.RecordingSource`): the images, the calibration, each view's
+  empty-scene plate (``views/<camera>/background.png``), the depth maps and the simulated BODY_25B detections; no mask, label or
   ground truth reaches the tracker. The silhouettes come from ``jaxmocap track``'s own ``--foreground plate``
   (subtraction against the plates, the noise estimated from them), the first pose from inverse kinematics on the
   first frame's detections (``--init ik``), the bands from :mod:`jaxmocap.features.bands`;
@@ -52,7 +52,7 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmar
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 
 import common
-from scenes import SHARED_CMU, CachedTracker, PlateSource
+from scenes import SHARED_CMU, CachedTracker, RecordingSource
 
 from jaxmocap import compilation_cache
 from jaxmocap.eval import metrics
@@ -76,19 +76,6 @@ LN_A = float(np.log(100.0))
 PAPER_TABLE_I = {"all cues": 16.4, "without edge": 14.6, "without depth": 34.8, "without colour": 14.1,
                  "without distance": 19.0}  # fmt: skip
 PAPER_OVERALL = (19.1, 12.9, 1.1)
-
-
-class Recording(PlateSource):
-    """A synthetic sequence as a recording has it: no masks (the tracker subtracts against the plates itself,
-    ``--foreground plate``), the simulated detections, the depth maps; the ground truth stays for scoring."""
-
-    def __init__(self, root):
-        super().__init__(root)
-        self.has_masks = False
-        self.description = {**self.description, "foreground": "plate (in the tracker)"}
-
-    def read(self, t: int, masks: bool = True, depth: bool = True):
-        return super().read(t, masks=False, depth=depth)
 
 
 def options(label: str, seed: int = 0, **over) -> TrackOptions:
@@ -134,7 +121,7 @@ def configurations(scale: float = 1.0) -> dict[str, list[tuple[str, dict]]]:
 
 def run_one(seq_dir: pathlib.Path, over: dict, seeds: int, work: pathlib.Path) -> dict:
     """Every seed of one configuration on one clip: per-run evaluations, step time, end-to-end frames/s."""
-    source = Recording(seq_dir)
+    source = RecordingSource(seq_dir)
     try:
         if over.get("preset", "li-kulic") is None:
             over = {k: v for k, v in over.items() if k != "preset"}
@@ -367,7 +354,7 @@ def overlay(size: str = "320x240", path: pathlib.Path = common.RESULTS / "li_kul
             dict(particles=list(COUNTS)),
             dict(particles=list(COUNTS), cues="depth,colour_template,wristband,ground"),
         ):
-            source = Recording(d)
+            source = RecordingSource(d)
             try:
                 run = CachedTracker(source, work / "track", options("", **over), quiet=True)
                 run.run()

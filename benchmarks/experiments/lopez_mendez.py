@@ -10,9 +10,9 @@ Scenario (every choice stated here):
   :func:`jaxmocap.synth.generate.synthesize` with the ``frontal-lateral`` rig at ``--size`` (default 160×120: the
   machine is 2 shared cores) in the 3D room (the body casts its shadow), low clutter, a ±10 % illumination change,
   motion blur over 2 source frames, sensor noise 0.01;
-* the input a recording gives (:class:`RecordingSource`): the images and the simulated BODY_25B detections; the
-  silhouettes come from the tracker's ``--foreground adaptive`` (eq. 4.1–4.2 with shadow removal, started from the
-  median of the frames), the first pose from inverse kinematics on the detections; no rendered mask or ground
+* the input a recording gives (:class:`scenes.RecordingSource`): the images, the empty-scene plates and the
+  simulated BODY_25B detections; the silhouettes come from the tracker's ``--foreground adaptive`` (eq. 4.1–4.2
+  with shadow removal, started from the plates), the first pose from inverse kinematics on the detections; no rendered mask or ground
   truth enters a run;
 * the tracker exactly as ``jaxmocap track --preset lopez-mendez --filter SCHEME`` runs it (``upper9``, 200
   particles × 3 layers, the scheme's cues and λ table: :mod:`jaxmocap.tracking.presets.lopez_mendez`), each
@@ -47,9 +47,9 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmar
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 
 import common
-from scenes import SHARED_CMU, CachedTracker, PlateSource
+from scenes import SHARED_CMU, CachedTracker, RecordingSource
 
-from jaxmocap.io.sources import FrameData, SequenceSource
+from jaxmocap.io.sources import SequenceSource
 from jaxmocap.synth import generate as synth
 from jaxmocap.tracking.options import TrackOptions
 
@@ -79,20 +79,6 @@ def clips() -> list[tuple[str, object, dict]]:
         out.append(("raise left hand", hand, dict(frames="12:42")))
     out.append(("walk 02_01", "demo", dict(frames="150:270")))
     return out
-
-
-class RecordingSource(PlateSource):
-    """A synthetic sequence as a recording: its images and simulated detections (:class:`scenes.PlateSource`'s),
-    no masks (the tracker's own background model segments the images)."""
-
-    def __init__(self, root):
-        super().__init__(root)
-        self.has_masks = False
-        self.description = {**self.description, "foreground": "tracker (adaptive)"}
-
-    def read(self, t: int, masks: bool = True, depth: bool = True) -> FrameData:
-        fd = SequenceSource.read(self, t, masks=False, depth=depth)
-        return FrameData(fd.images, None, fd.depth, self.keypoints[t])
 
 
 def run_scheme(seq: pathlib.Path, scheme: str, runs: int, work: pathlib.Path, particles: int) -> dict:
@@ -240,7 +226,7 @@ def report(res: dict, modes: dict, args, elapsed: float) -> str:
             "",
         ]
     lines += [
-        "Speed: the thesis tracks at 9.5 frames/s with capture; the issue's goal is ≥ 60 frames/s on the 2-core "
+        "Speed: the thesis tracks at 9.5 frames/s with capture; this project's goal is ≥ 60 frames/s on the 2-core "
         "CPU. Step frames/s: the compiled filter step alone (median); run frames/s: the whole run (reading, "
         "adaptive background, edges, skin, step, outputs), median over runs, at this image size.",
         "",

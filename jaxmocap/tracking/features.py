@@ -112,7 +112,8 @@ class FeatureBuilder:
     ``mog2`` (adaptive; stateful, so not reproduced exactly by ``--resume``), ``adaptive`` (López Méndez's
     adaptive single Gaussian per pixel and channel, eq. 4.1–4.2, with shadow removal:
     :class:`jaxmocap.features.foreground.GaussianBackground` with :class:`~jaxmocap.features.foreground.ShadowParams`,
-    its mean started from :func:`median_background` and its σ from the configuration's sensor noise
+    its mean started from the input's recorded plates when it has them, else from :func:`median_background`, and
+    its σ from the configuration's sensor noise
     ``noise_std``, 4 grey levels — the shadow test's chromaticity bound is in units of σ; only pixels classified
     as background are learned (``selective``: a subject passing over a pixel would inflate its σ, and with it the
     shadow test's bound, until the subject itself passes for a shadow); the shadow test :data:`ADAPTIVE_SHADOW`
@@ -135,10 +136,10 @@ class FeatureBuilder:
     ):
         if foreground not in FOREGROUNDS:
             raise ValueError(f"unknown foreground {foreground!r}; choose one of {', '.join(FOREGROUNDS)}")
-        plates = getattr(source, "plate_files", None)
+        plate_files = getattr(source, "plate_files", None)
         if foreground == "auto":
-            foreground = "mask" if source.has_masks else "plate" if plates else "median"
-        if foreground == "plate" and not plates:
+            foreground = "mask" if source.has_masks else "plate" if plate_files else "median"
+        if foreground == "plate" and not plate_files:
             raise ValueError(
                 "--foreground plate needs an empty-scene image per camera (a sequence folder's "
                 "views/<camera>/background.png, or --plates with --videos)"
@@ -186,10 +187,11 @@ class FeatureBuilder:
             self.extractor.set_plates(source.plates())
         if foreground in ("median", "adaptive"):
             frames = list(range(source.num_frames)) if frames is None else list(frames)
-            plates = median_background(source, frames)
+            recorded = foreground == "adaptive" and plate_files
+            plates = source.plates() if recorded else median_background(source, frames)
             if foreground == "median":
                 self.extractor.set_background(plates)
-            else:  # the adaptive model starts from the median plate, not from the first frame (with the subject)
+            else:  # the adaptive model starts from the recorded plates, else the median, never the first frame
                 f = cfg.downsample
                 for bg, plate in zip(self.extractor.backgrounds, plates, strict=True):
                     bg.init_std, bg.selective = cfg.noise_std, True
