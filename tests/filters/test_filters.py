@@ -88,7 +88,14 @@ def loglik_level(X, obs, layer):
     return _kill(_gauss(X, obs.z, GROUPS[layer.partition]), obs, layer.partition)
 
 
-STEPS = {cls: jax.jit(cls.step) for cls in (SIR, ICondensation, APF, Partitioned)}
+#: XLA's default backend optimisation level (the suite compiles at 0, tests/conftest.py), for the steps below: the
+#: Kalman comparisons run them hundreds of times on thousands of particles (their time is run time, ≈ 10 × longer
+#: at level 0), and the bit-for-bit equality of two differently structured programs is a property of the code
+#: generation users run
+PRODUCTION = {"xla_backend_optimization_level": 3}
+STEPS = {
+    cls: jax.jit(cls.step, compiler_options=PRODUCTION) for cls in (SIR, ICondensation, APF, Partitioned)
+}
 
 
 def simulate(seed, dead=None):
@@ -273,9 +280,6 @@ def test_hierarchical_sampling_matches_kalman():
 
 
 GROUP_MASKS = np.array([[True, True, False], [False, False, True]])
-#: XLA's default backend optimisation level (the suite compiles at 0, tests/conftest.py): the bit-for-bit equality of
-#: two differently structured programs is a property of the code generation users run
-PRODUCTION = {"xla_backend_optimization_level": 3}
 
 
 @pytest.mark.parametrize("hier", [False, True])
