@@ -6,6 +6,14 @@ program that several tests or both workers build (the same likelihood, filter st
 is compiled by XLA once and loaded from the folder afterwards. The folder is new for every run and removed at its
 end: nothing is carried between runs, and a test that counts traces or compilations (``_cache_size``,
 ``jax.log_compiles``) sees the same counts as without it, since the in-memory jit cache is unchanged.
+
+Programs are compiled at XLA's lowest backend optimisation level (``--xla_backend_optimization_level=0`` added to
+``XLA_FLAGS``, inherited by the workers and by the ``jaxmocap`` child processes): most of the suite's time is
+XLA compiling programs that then run for milliseconds. The level decides how much LLVM optimises the machine code
+(its speed), not the operations of the program: the results agree with the default level's to float rounding,
+which the tolerances allow for, and two programs compared bit for bit are both compiled at it. No test times
+anything. To run the suite on the production code generation, name a level yourself
+(``XLA_FLAGS=--xla_backend_optimization_level=2 python -m pytest``): a level already in ``XLA_FLAGS`` is kept.
 """
 
 import os
@@ -28,6 +36,9 @@ def pytest_configure(config):
     # the command line's persistent compilation cache stays off in the suite (nothing written to the home
     # directory; tests/test_compilation_cache.py turns it on in its own processes)
     os.environ["JAXMOCAP_CACHE_DIR"] = "off"
+    flags = os.environ.get("XLA_FLAGS", "")
+    if "xla_backend_optimization_level" not in flags:
+        os.environ["XLA_FLAGS"] = f"{flags} --xla_backend_optimization_level=0".strip()
     if not hasattr(config, "workerinput") and "JAX_COMPILATION_CACHE_DIR" not in os.environ:
         folder = tempfile.mkdtemp(prefix="jaxmocap-tests-xla-")
         config.stash[_CACHE] = folder
@@ -43,3 +54,13 @@ def pytest_unconfigure(config):
 
 
 _CACHE = pytest.StashKey[str]()
+
+
+def pytest_collection_modifyitems(config, items):
+    """The files with end-to-end cases (a test marked ``slow``: child processes, whole tracks) run first, the rest
+    after them in their usual order: the two pytest-xdist workers take files from one queue in this order
+    (``--dist=loadfile --no-loadscope-reorder``), so the long files are spread over both workers from the start and
+    the short ones fill the end, and the workers finish together (the default order puts files with few tests last,
+    and a long one of them kept a worker busy after the other had finished)."""
+    slow = {item.path for item in items if item.get_closest_marker("slow") is not None}
+    items.sort(key=lambda item: item.path not in slow)  # stable: a file's tests stay together and in order
