@@ -582,7 +582,8 @@ def _add_tracking_commands(sub) -> None:
     tr.add_argument(
         "--preset",
         choices=tuple(_PRESETS),
-        help="a paper's tracker: li-kulic (Li & Kulic's ten-partition filter on full25); options given here or "
+        help="a paper's tracker: li-kulic (Li & Kulic's ten-partition filter on full25), iros2007 (Fontmarty et "
+        "al.'s IAPF on upper14 with five cues); options given here or "
         "in --config override the preset's (README: Presets)",
     )
     tr.add_argument("--model", choices=_MODELS, help="body model (default: the body file's, else full25)")
@@ -601,7 +602,8 @@ def _add_tracking_commands(sub) -> None:
     tr.add_argument("--frames", help="frame range A:B (default: all, or a Pose2Sim project's frame_range)")
     tr.add_argument(
         "--init",
-        help="groundtruth, ik or a FILE (.npz with 'state', .npy, text); default: groundtruth if the input has it, else ik",
+        help="groundtruth, ik, head-hands (skin blobs and face) or a FILE (.npz with 'state', .npy, text); default: "
+        "groundtruth if the input has it, else ik",
     )
     tr.add_argument(
         "--body",
@@ -650,6 +652,26 @@ def _add_tracking_commands(sub) -> None:
         ("--reinit-widen", float, "spread of a re-initialisation, times the diffusion (default 3)"),
     ):
         tr.add_argument(flag, type=kind, help=what)
+    tr.add_argument(
+        "--proposal",
+        choices=("auto", "head-hands"),
+        help="detection-driven pose of icondensation / iapf and of re-initialisations: auto (keypoint IK, else "
+        "the silhouette centroid) or head-hands (3D head and hands from skin blobs and the face detector)",
+    )
+    tr.add_argument(
+        "--annealing",
+        choices=("auto", "iros2007"),
+        help="beta of the annealed filters: auto (Deutscher's rule) or iros2007 (fixed 3 layers, "
+        "beta = 0.1, 0.4, 1, dynamics exponents 1, 4, 25)",
+    )
+    for flag, what in (
+        (
+            "--dynamics-fraction",
+            "share of icondensation / iapf particles drawn from the dynamics (default 0.5)",
+        ),
+        ("--detection-fraction", "share drawn around the detection-driven pose (default 0.4)"),
+    ):
+        tr.add_argument(flag, type=float, help=what)
     tr.add_argument("--fsync", action="store_true", default=None, help="fsync every output rewrite")
     tr.add_argument(
         "--resume", action="store_true", default=None, help="continue an interrupted run in --out"

@@ -122,6 +122,8 @@ def make_filter(
     prior_std: np.ndarray,
     survival_target: float = 0.5,
     groups: Sequence[Sequence[int]] | None = None,
+    annealing: Schedule | None = None,
+    importance: dict | None = None,
 ):
     """Filter ``name`` (:data:`FILTERS`) on ``loglik(X, observation, layer) -> (N,)``.
 
@@ -136,6 +138,11 @@ def make_filter(
     each arm and leg 350; the other filters take an int). ``hybrid`` is the APF with
     gradient moves (:data:`HYBRID_MOVE`) and ``apf-refine`` the APF whose estimate is refined by gradient ascent
     (:class:`jaxmocap.filters.hybrid.HybridAPF`); both need ``loglik`` differentiable in ``X``.
+
+    ``annealing``: a schedule replacing the one above for ``apf`` / ``iapf`` (e.g.
+    :meth:`~jaxmocap.filters.annealing.Schedule.iros2007`; its layer count must be ``num_layers``);
+    ``importance``: fields of :class:`~jaxmocap.filters.icondensation.ImportanceOptions`
+    (``dynamics_fraction``, ``detection_fraction``) for ``icondensation`` / ``iapf``.
     """
     if name not in FILTERS:
         raise ValueError(f"unknown filter {name!r}; choose one of {', '.join(FILTERS)}")
@@ -150,6 +157,9 @@ def make_filter(
     scales = tuple(0.25 ** (l / (L - 1)) for l in range(L)) if L > 1 else (1.0,)
     centre = _proposal_centre
     prior = dict(prior_mean=jnp.asarray(prior_mean, dt), prior_std=jnp.asarray(prior_std, dt))
+    prior.update(importance or {})
+    if annealing is not None and annealing.num_layers != L:
+        raise ValueError(f"the annealing schedule has {annealing.num_layers} layers, the filter {L}")
     if name == "sir":
         return SIR(loglik, std, num_particles, **common)
     if name == "icondensation":
@@ -175,6 +185,8 @@ def make_filter(
         )
     else:
         sched = Schedule.deutscher(L, survival_target, diffusion_scales=scales)
+    if annealing is not None:
+        sched = annealing
     if name == "iapf":
         return APF(
             loglik,

@@ -409,6 +409,8 @@ class TrackingLoop:
                 # detection-driven proposal centre (ICONDENSATION / IAPF) and the no-person test
                 no_person = masks is not None and not np.any(np.sum(masks, axis=(1, 2)) >= 20)
                 centre = setup.detection(fd, masks, loss.last_good)
+                absent = getattr(setup, "person_absent", None)  # a detector that sees nobody
+                no_person = no_person or (absent is not None and absent(fd))
                 if centre is not None:
                     tobs = tobs._replace(centre=jnp.asarray(centre, jnp.float32), valid=jnp.asarray(True))
                 # damped constant-velocity prediction of the root translation
@@ -430,7 +432,12 @@ class TrackingLoop:
                 lost, reinit_source = False, None
                 if setup.track_loss:
                     bad_quality = loss.bad_quality(q)
-                    lost = recovered or no_person or loss.lost_run >= o.loss_frames
+                    # a person seen again after frames without one: re-initialise on them
+                    appeared = getattr(loss, "absent", False) and not no_person
+                    loss.absent = bool(no_person)
+                    if no_person:  # the quality reference is learnt again once a person is seen
+                        loss.q_ref, loss.q_hist = float("nan"), []
+                    lost = recovered or no_person or appeared or loss.lost_run >= o.loss_frames
                     if lost:
                         stats["lost_frames"] += 1
                         mean, reinit_source = setup.reinit_mean(fd, masks, loss.last_good)

@@ -14,7 +14,7 @@ A preset is plain data (:class:`Preset`):
   :mod:`jaxmocap.likelihood.partition`).
 
 Each paper's preset lives in a module of its own that puts the paper's parameters beside the values chosen here
-and lists what differs or is missing: :mod:`.li_kulic` (``li-kulic``).
+and lists what differs or is missing: :mod:`.li_kulic` (``li-kulic``), :mod:`.iros2007` (``iros2007``).
 """
 
 from __future__ import annotations
@@ -23,12 +23,13 @@ from collections.abc import Mapping
 
 from jaxmocap.choices import PARTITIONED
 from jaxmocap.tracking.presets.base import FILTER_OPTIONS, Partition, Preset
+from jaxmocap.tracking.presets.iros2007 import IROS2007
 from jaxmocap.tracking.presets.li_kulic import LI_KULIC
 
-__all__ = ["LI_KULIC", "PRESETS", "Partition", "Preset", "apply", "get", "partition_layout"]
+__all__ = ["IROS2007", "LI_KULIC", "PRESETS", "Partition", "Preset", "apply", "get", "partition_layout"]
 
 #: The presets by name.
-PRESETS: dict[str, Preset] = {LI_KULIC.name: LI_KULIC}
+PRESETS: dict[str, Preset] = {LI_KULIC.name: LI_KULIC, IROS2007.name: IROS2007}
 
 
 def get(name: str) -> Preset:
