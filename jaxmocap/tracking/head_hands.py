@@ -12,7 +12,9 @@ Per frame, on the full-size images of a calibrated pair (views ``(0, 1)``):
 3. the head (:func:`choose_head`): the blob whose first-view centroid lies in a face found by the Haar detector
    (:class:`jaxmocap.features.face.FaceDetector`; the face box nearest the blob when several), else — no face
    found, or none over a blob — the highest candidate whose height is at least ``min_head_height``;
-4. the hands: the two most confident other candidates within ``reach`` of the head; a missing hand gets weight 0
+4. the hands: the two other candidates within ``reach`` of the head with the best scores (match confidence ×
+   mean skin probability of the blob) whose size is a hand's (the disc of the blob's area at its depth has a
+   radius of at most ``hand_radius``, 8 cm); a missing hand gets weight 0
    in the IK;
 5. left / right (:func:`assign_hands`): the assignment nearest to the wrists of a reference pose (the last good
    estimate) when there is one, else the person faces the first camera, so that the person's left hand is on the
@@ -99,7 +101,8 @@ class HeadHandsDetector:
 
     ``rig``: the calibration of the full-size ``images`` (BGR ``uint8``, one per view); ``views``: the stereo
     pair; ``skin_model`` / ``face_detector``: default the package's skin model and OpenCV's frontal-face
-    cascade (``face=False``: no face detection, the head is the highest blob)."""
+    cascade (``face=False``: no face detection, the head is the highest blob); ``min_area``: the smallest blob
+    in pixels (default 20 at 640×480, in proportion to the image area, at least 4)."""
 
     def __init__(
         self,
@@ -109,12 +112,13 @@ class HeadHandsDetector:
         face: bool = True,
         threshold: float = 0.5,
         max_blobs: int = 6,
-        min_area: int = 20,
+        min_area: int | None = None,
         max_epipolar: float = 5.0,
         height_range: tuple[float, float] = (0.3, 2.3),
         max_range: float = 6.0,
         min_head_height: float = 1.0,
         reach: float = 1.2,
+        hand_radius: float = 0.08,
     ):
         from jaxmocap.features.skin import default_skin_model
 
@@ -128,31 +132,46 @@ class HeadHandsDetector:
 
             # faces of a person a few metres away are small: a lower size limit than OpenCV's default
             self.face_detector = FaceDetector(min_size=(12, 12), min_neighbors=4)
+        if min_area is None:  # 20 pixels at 640x480, in proportion to the image area
+            w, h = rig.image_size[0]
+            min_area = max(4, round(20 * w * h / (640 * 480)))
         self.threshold, self.max_blobs, self.min_area = float(threshold), int(max_blobs), int(min_area)
         self.max_epipolar = float(max_epipolar)
         self.height_range, self.max_range = tuple(height_range), float(max_range)
         self.min_head_height, self.reach = float(min_head_height), float(reach)
+        self.hand_radius = float(hand_radius)
         self._centre = np.asarray(camera.camera_centres(rig.to_jax(jnp.float32)), np.float64)[self.views[0]]
 
-    def candidates(self, images) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(points (K, 3), first-view centroids (K, 2), confidences (K,))`` of the plausible matched blobs."""
+    def candidates(self, images) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(points (K, 3), first-view centroids (K, 2), scores (K,), radii (K,))`` of the plausible matched blobs;
+        a score is the match's confidence times the blob's mean skin probability in the first view (a hand is skin
+        through and through; a noisy patch of clothing is skin in places); a radius, metres, is that of the disc
+        of the blob's first-view area at its depth, ``√(A/π) Z / f``."""
         i, j = self.views
+        prob = [self.skin_model.probability_u8(images[v]) for v in (i, j)]
         blobs = [
-            skin_blobs(
-                self.skin_model.probability_u8(images[v]), self.threshold, self.max_blobs, self.min_area
-            )
-            for v in (i, j)
+            skin_blobs(p, self.threshold, self.max_blobs, self.min_area, with_labels=(k == 0))
+            for k, p in enumerate(prob)
         ]
         pts, conf, matches = stereo_blobs(
             self.rig, blobs, (i, j), self.max_blobs, max_epipolar=self.max_epipolar
         )
         n = len(matches)
         pts, conf = pts[:n], conf[:n]
-        uv = blobs[0].centroids[[m.i for m in matches]].reshape(-1, 2)
+        first = [m.i for m in matches]
+        uv = blobs[0].centroids[first].reshape(-1, 2)
+        lab = blobs[0].labels.ravel()
+        sums = np.bincount(lab, prob[0].ravel().astype(np.float64), minlength=self.max_blobs + 1)
+        counts = np.bincount(lab, minlength=self.max_blobs + 1)
+        skinness = sums[1:] / np.maximum(counts[1:], 1) / 255.0
+        score = conf * skinness[first] if n else conf
+        R, t, K = (np.asarray(a[i], np.float64) for a in (self.rig.R, self.rig.t, self.rig.K))
+        depth = pts @ R[2] + t[2]
+        radius = np.sqrt(blobs[0].areas[first] / np.pi) * depth / K[0, 0] if n else conf
         lo, hi = self.height_range
         ok = (pts[:, 2] >= lo) & (pts[:, 2] <= hi)
         ok &= np.linalg.norm(pts - self._centre, axis=1) <= self.max_range
-        return pts[ok], uv[ok], conf[ok]
+        return pts[ok], uv[ok], score[ok], radius[ok]
 
     def faces_near(self, image: np.ndarray, uv: np.ndarray, half: int = 48) -> np.ndarray:
         """Face boxes ``(F, 4)`` found in windows of ``2·half`` pixels around the centroids ``uv (K, 2)`` (a face
@@ -170,7 +189,7 @@ class HeadHandsDetector:
 
     def __call__(self, images, model=None, reference: np.ndarray | None = None) -> HeadHands | None:
         """The frame's head and hands, or None without a head (``model``/``reference``: :func:`assign_hands`)."""
-        pts, uv, conf = self.candidates(images)
+        pts, uv, conf, radius = self.candidates(images)
         faces = np.zeros((0, 4))
         if self.face_detector is not None and len(pts):
             faces = self.faces_near(images[self.views[0]], uv)
@@ -179,7 +198,10 @@ class HeadHandsDetector:
             return None
         head = pts[k]
         rest = [m for m in np.argsort(-conf, kind="stable") if m != k]
-        rest = [m for m in rest if np.linalg.norm(pts[m] - head) <= self.reach][:2]
+        rest = [
+            m for m in rest if np.linalg.norm(pts[m] - head) <= self.reach and radius[m] <= self.hand_radius
+        ]
+        rest = rest[:2]
         hands = np.repeat(head[None], 2, axis=0)
         weights = np.array([1.0, 0.0, 0.0])
         if len(rest) == 2:
