@@ -207,9 +207,11 @@ class HeadHandsDetector:
         if len(rest) == 2:
             left, right = assign_hands(pts[rest], self.rig, model, reference)
             return HeadHands(head, left, right, np.ones(3), how)
-        if len(rest) == 1:  # one hand: on the side the reference (or the camera) puts it
-            hands[0] = pts[rest[0]]
-            weights[1] = 1.0
+        if len(rest) == 1:  # one hand: on the side the reference (or the camera, against the head) puts it
+            left, _ = assign_hands(np.stack([pts[rest[0]], head]), self.rig, model, reference)
+            side = 0 if np.array_equal(left, pts[rest[0]]) else 1
+            hands[side] = pts[rest[0]]
+            weights[1 + side] = 1.0
         return HeadHands(head, hands[0], hands[1], weights, how)
 
 

@@ -232,10 +232,9 @@ def test_preset_locks_on_when_the_person_appears_and_tracks(sequence, tmp_path):
     """Nobody in view for 2 frames (the default standing pose, lost), then the walk: the run re-initialises from
     the head and hands and tracks the 6 frames after it with no ground truth anywhere in the run.
 
-    Reference points (seed 0, 160x120 processed): measured 281 mm over the 15 joints' upper nine after the
-    person appears (head 176 mm; the wrists err most: the walk is seen side-on, and the face-on rule that
-    sides the hands at a lock-on does not hold); the default pose held errs by 342 mm. Bounds: below 330 mm overall,
-    below the held default pose, and the head below 200 mm."""
+    Reference points (seed 0, 160x120 processed): measured 225 mm over the upper nine of the 15 joints after the
+    person appears (head 121 mm; the wrists err most: a hand is often not seen); the default pose held errs by
+    342 mm. Bounds: below 280 mm overall and 0.8 of the held default pose's error, the head below 170 mm."""
     src = _EmptyFirst(sequence, 2)
     out = tmp_path / "run"
     run = Tracker(src, out, TrackOptions.from_preset("iros2007", downsample=4, smooth="none"), quiet=True)
@@ -255,5 +254,5 @@ def test_preset_locks_on_when_the_person_appears_and_tracks(sequence, tmp_path):
     held = np.repeat(joints[:1], int(keep.sum()), axis=0)
     static = metrics.evaluate([(frames[keep], held)], gt, gt_frames)["overall_mean_mm"]
     print(f"iros2007 preset: {err:.1f} mm (head {head:.1f}) after the person appears (held: {static:.1f} mm)")
-    assert err < 330.0 and head < 200.0
-    assert err < static
+    assert err < 280.0 and head < 170.0
+    assert err < 0.8 * static
