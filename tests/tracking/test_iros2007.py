@@ -86,6 +86,39 @@ def test_preset_wires_the_papers_cues_schedule_and_counts(sequence):
         TrackSetup(SequenceSource(sequence), TrackOptions.from_preset("iros2007", proposal="x"))
 
 
+def test_command_line_and_config_override_the_iros2007_options(tmp_path):
+    from jaxmocap import cli
+    from jaxmocap.api import run_options
+
+    parse = cli.build_parser().parse_args
+    argv = ["track", "seq", "--out", "o", "--preset", "iros2007"]
+    o = run_options(cli._track_values(parse(argv)))
+    assert (o.proposal, o.annealing, o.init, o.foreground) == ("head-hands", "iros2007", "head-hands", "none")
+    assert (o.detection_fraction, o.dynamics_fraction, o.velocity) == (0.8, 0.2, 0.0)
+    more = [
+        "--annealing",
+        "auto",
+        "--proposal",
+        "auto",
+        "--dynamics-fraction",
+        "0.5",
+        "--detection-fraction",
+        "0.4",
+    ]
+    o = run_options(cli._track_values(parse(argv + more)))
+    assert (o.annealing, o.proposal, o.dynamics_fraction, o.detection_fraction) == ("auto", "auto", 0.5, 0.4)
+    cfg = tmp_path / "run.toml"
+    cfg.write_text('preset = "iros2007"\ndetection_fraction = 0.6\nout = "o"\n', encoding="utf-8")
+    o = run_options(cli._track_values(parse(["track", "seq", "--config", str(cfg)])))
+    assert (o.detection_fraction, o.dynamics_fraction) == (0.6, 0.2)
+    # the new options enter a run's identity only away from their defaults (older runs resume unchanged)
+    assert not {"proposal", "annealing", "dynamics_fraction"} & set(TrackOptions().identity())
+    assert TrackOptions.from_preset("iros2007").identity()["annealing"] == "iros2007"
+    with pytest.raises(SystemExit) as e:
+        parse(argv + ["--annealing", "linear"])
+    assert e.value.code == 2
+
+
 def test_mixture_draws_the_detection_share_around_the_head_hands_pose(sequence):
     """First layer of the preset's IAPF: the 160 detection slots are N(x^D, Δ²) (their mean within 4 standard
     errors Δ/√160 of x^D), the 40 dynamics slots come from the previous set."""
@@ -148,8 +181,14 @@ def test_hands_assigned_by_side_facing_the_camera():
     a, b = np.array([0.4, 3.0, 1.0]), np.array([-0.4, 3.0, 1.0])
     left, right = hh.assign_hands(np.stack([a, b]), rig)
     assert np.allclose(left, a) and np.allclose(right, b)
-    # with a reference pose the nearer assignment wins whatever the side
-    assert np.allclose(np.cross([0, 0, 1.0], [0, -1.0, 0]), [1, 0, 0])
+    # with a reference pose, the assignment nearer its wrists wins whatever the side
+    model = body_mod.build("upper14", None, in_metres=True)
+    x = np.asarray(model.rest_pose, np.float64)
+    J = np.asarray(joint_positions(model, jnp.asarray(x, jnp.float32)), np.float64)
+    wl = J[model.joint_names.index("left_wrist")]
+    wr = J[model.joint_names.index("right_wrist")]
+    left, right = hh.assign_hands(np.stack([wr + 0.01, wl - 0.01]), rig, model, x)
+    assert np.allclose(left, wl - 0.01) and np.allclose(right, wr + 0.01)
 
 
 def test_head_hands_ik_reaches_the_targets_of_a_known_pose(model):
