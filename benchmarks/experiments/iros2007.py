@@ -25,7 +25,7 @@ sequence, and pooled. Re-initialisation: on the first sequence, frames ``[gap, g
 
 Usage::
 
-    python benchmarks/experiments/iros2007.py --runs 3 --frames 24   # writes benchmarks/results/iros2007.md
+    python benchmarks/experiments/iros2007.py --runs 5 --frames 24   # writes benchmarks/results/iros2007.md
     python benchmarks/experiments/iros2007.py --quick          # 1 sequence, 1 run, 6 frames; writes nothing
 """
 
@@ -227,7 +227,8 @@ def report(res, fps, recover, runs, frames, gap, length, seqs, wall, quick) -> s
         + " (here the APF re-initialises too: the tracker's track-loss rule re-initialises every filter from the "
         "head and hands when a person appears).",
         f"- Speed: {np.median(fps['IAPF']):.1f} frames/s end to end for the IAPF at 160x120 features (640x480 "
-        "images decoded, skin and face at full size) on the shared 2-core CPU; the paper: 1–4 Hz on a Pentium IV. "
+        "images decoded, skin and face at full size) on the 2-core CPU shared with other work (the load average "
+        "above); the paper: 1–4 Hz on a Pentium IV. "
         "The 30 frames/s goal at 640x480 features was not measured here.",
         "",
         "Not done: the cue ablation in clutter (none / medium / high). In the cluttered room "
@@ -236,7 +237,7 @@ def report(res, fps, recover, runs, frames, gap, length, seqs, wall, quick) -> s
     ]
     text = "\n".join(lines)
     return common.report(
-        RESULTS, text, "python benchmarks/experiments/iros2007.py --runs 3 --frames 24", write=not quick
+        RESULTS, text, "python benchmarks/experiments/iros2007.py --runs 5 --frames 24", write=not quick
     )
 
 
