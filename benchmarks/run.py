@@ -255,7 +255,7 @@ SCRIPTS: dict[str, Script] = {
     "iros2007": Script(
         "IROS 2007 end to end: --preset iros2007, SIR / ICONDENSATION / APF / IAPF on rendered CMU motions",
         "experiments/iros2007.py",
-        "--runs 5 --frames 24",
+        "--runs 15 --frames 24",
         writes=("iros2007.md",),
         slow=True,
     ),

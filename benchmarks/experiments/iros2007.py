@@ -25,7 +25,7 @@ sequence, and pooled. Re-initialisation: on the first sequence, frames ``[gap, g
 
 Usage::
 
-    python benchmarks/experiments/iros2007.py --runs 5 --frames 24   # writes benchmarks/results/iros2007.md
+    python benchmarks/experiments/iros2007.py --runs 15 --frames 24   # writes benchmarks/results/iros2007.md
     python benchmarks/experiments/iros2007.py --quick          # 1 sequence, 1 run, 6 frames; writes nothing
 """
 
@@ -237,7 +237,7 @@ def report(res, fps, recover, runs, frames, gap, length, seqs, wall, quick) -> s
     ]
     text = "\n".join(lines)
     return common.report(
-        RESULTS, text, "python benchmarks/experiments/iros2007.py --runs 5 --frames 24", write=not quick
+        RESULTS, text, "python benchmarks/experiments/iros2007.py --runs 15 --frames 24", write=not quick
     )
 
 
