@@ -252,6 +252,13 @@ SCRIPTS: dict[str, Script] = {
         writes=("iros_synthetic.md",),
         fn=_iros,
     ),
+    "iros2007": Script(
+        "IROS 2007 end to end: --preset iros2007, SIR / ICONDENSATION / APF / IAPF on rendered CMU motions",
+        "experiments/iros2007.py",
+        "--runs 15 --frames 24",
+        writes=("iros2007.md",),
+        slow=True,
+    ),
     "determinism": Script(
         "One seed tracked twice over 1500 frames in one process: identical poses",
         "experiments/determinism.py",

@@ -24,8 +24,8 @@ import pathlib
 import signal
 import sys
 
-from jaxmocap import __version__, choices
-from jaxmocap.errors import MocapInputError
+from jaxmocap import __version__, choices, demo
+from jaxmocap.errors import MocapInputError, silence_opencv
 from jaxmocap.tracking import presets
 from jaxmocap.tracking.smoothing import DEFAULT_CUTOFF_HZ
 
@@ -141,11 +141,6 @@ def _particle_counts(text: str) -> int | list[int]:
     return counts[0] if len(counts) == 1 else counts
 
 
-def _cues_text(cues) -> str:
-    """``[("foreground", 1.0), ("coverage", 4.0)]`` → ``"foreground, coverage:4"`` (the ``--cues`` syntax)."""
-    return ", ".join(n if w == 1 else f"{n}:{w:g}" for n, w in cues)
-
-
 def _print_summary(summary: dict, out) -> None:
     from jaxmocap.filters.factory import particles_text
 
@@ -158,7 +153,9 @@ def _print_summary(summary: dict, out) -> None:
     elif fps:
         line += f" ({fps:.2f} frames/s over the frames tracked before the resume)"
     print(line)
-    cues = _cues_text(s["cues"])
+    from jaxmocap.tracking.options import cues_text
+
+    cues = cues_text(s["cues"])
     print(
         f"model {s['model']}, filter {s['filter']}, {particles_text(s['particles'])} particles x {s['layers']} layer(s), cues {cues}"
     )
@@ -260,20 +257,13 @@ def _make_run(source, out, options, quiet: bool):
     return tracker.Tracker(source, out, options, quiet=quiet)
 
 
-def _silence_opencv() -> None:
-    """OpenCV's own log lines (e.g. about a corrupt PNG chunk) would clutter the one-line error messages."""
-    import cv2
-
-    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
-
-
 def _track(args) -> int:
     import dataclasses
 
     from jaxmocap.api import run_options, write_config
     from jaxmocap.tracking import interrupts
 
-    _silence_opencv()
+    silence_opencv()
     run, out, quiet = None, None, False
     try:
         values = _track_values(args)
@@ -313,26 +303,6 @@ def _track(args) -> int:
     return 0
 
 
-def evaluate_runs(pred: list, gt: str, out: str | None = None, quiet: bool = False):
-    """Evaluate tracking output folders against a sequence's ground truth; write JSON and plots when ``out``."""
-    from jaxmocap.eval import metrics, viz
-
-    gt_frames, gt_joints = metrics.load_groundtruth(gt)
-    runs = [metrics.load_prediction(p) for p in pred]
-    try:
-        report = metrics.evaluate(runs, gt_joints, gt_frames, run_names=[str(p) for p in pred])
-    except ValueError as e:
-        raise MocapInputError(pred[0], str(e)) from None
-    if out is not None:
-        out = pathlib.Path(out)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        report.save(out)
-        stem = out.with_suffix("")
-        viz.plot_error_over_time(report, f"{stem}_error_over_time.png")
-        viz.plot_per_joint(report, f"{stem}_per_joint.png")
-    return report
-
-
 def _smooth_spec(text: str) -> str:
     """``--smooth``: checked here (the cut-off against the frame rate when the input is open)."""
     from jaxmocap.tracking.smoothing import parse_smooth
@@ -357,7 +327,7 @@ def _plot(args) -> int:
 def _eval(args) -> int:
     from jaxmocap.eval import metrics
 
-    report = evaluate_runs([args.pred, *(args.runs or [])], args.gt, args.out)
+    report = metrics.evaluate_folders([args.pred, *(args.runs or [])], args.gt, args.out)
     print(
         metrics.format_table(
             report, f"3D joint error (mm) of {report['num_runs']} run(s) over {report['num_frames']} frames"
@@ -368,87 +338,6 @@ def _eval(args) -> int:
     return 0
 
 
-DEMO_FRAMES = "0:240"
-DEMO_SIZE = "320x240"
-
-
-def _demo(args) -> int:
-    import shutil
-    import time
-
-    import cv2
-    import numpy as np
-
-    from jaxmocap.eval import metrics, viz
-    from jaxmocap.filters.factory import particles_text
-    from jaxmocap.io.sources import SequenceSource
-    from jaxmocap.synth import generate as synth
-    from jaxmocap.tracking import tracker
-    from jaxmocap.tracking.options import TrackOptions
-
-    _silence_opencv()
-    t0 = time.monotonic()
-    out = pathlib.Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    seq_dir, track_dir = out / "sequence", out / "track"
-    print(f"motion: {synth.demo_clip()[0].name} (CMU subject 2, trial 1: a walk). {synth.CMU_LICENCE}")
-    print(f"1/4 synthesising a stereo sequence ({args.size}) of source frames {args.frames} ...", flush=True)
-    seq = synth.synthesize(
-        "demo", seq_dir, rig="stereo", frames=args.frames, size=args.size, seed=args.seed, overwrite=True
-    )
-    t1 = time.monotonic()
-    print(f"    {seq.num_frames} frames x {len(seq.views)} views in {t1 - t0:.1f} s", flush=True)
-    print(f"2/4 tracking with {args.filter} ...", flush=True)
-    options = TrackOptions(
-        filter=args.filter,
-        particles=args.particles,
-        layers=args.layers,
-        seed=args.seed,
-        init="groundtruth",
-        overlay=True,
-        overwrite=True,
-    )
-    source = SequenceSource(seq_dir)
-    if track_dir.exists():
-        shutil.rmtree(track_dir)
-    run = tracker.Tracker(source, track_dir, options, quiet=args.quiet)
-    summary = run.run()
-    t2 = time.monotonic()
-    print("3/4 evaluating ...", flush=True)
-    report = evaluate_runs([track_dir], seq_dir, out / "eval.json")
-    print("4/4 overlay frame ...", flush=True)
-    mid = len(run.frames) // 2
-    poses = metrics.load_prediction(track_dir)
-    state = dict(zip(poses[0].tolist(), np.load(track_dir / "poses.npz")["state"], strict=True))[
-        run.frames[mid]
-    ]
-    fd = source.read(run.frames[mid], masks=False)
-    truth = seq.groundtruth.joints[run.frames[mid]]
-    views = viz.overlay_image(fd.images, run.model, source.rig.to_jax(), state, truth)
-    crops = viz.person_crops(views, source.rig.to_jax(), truth)  # the subject, enlarged, in both views
-    cv2.imwrite(
-        str(out / "demo_overlay.png"), np.concatenate(crops, axis=1), [cv2.IMWRITE_PNG_COMPRESSION, 9]
-    )
-    total = time.monotonic() - t0
-    cues = _cues_text(summary["cues"])
-    head = [
-        "jaxmocap demo: CMU 02_01 (walk), synthetic stereo, " + f"{seq.num_frames} frames at {args.size}",
-        f"model {summary['model']}, filter {summary['filter']}, {particles_text(summary['particles'])} particles x "
-        f"{summary['layers']} layers, cues {cues}, init from ground truth",
-        f"tracking {t2 - t1:.1f} s ({summary['frames_per_s']:.2f} frames/s after the first frame), total {total:.1f} s",
-        "",
-    ]
-    table = "\n".join(head) + metrics.format_table(report)
-    (out / "demo_table.txt").write_text(table + "\n")
-    print()
-    print(table)
-    print()
-    print(
-        f"wrote {out / 'demo_table.txt'}, {out / 'demo_overlay.png'}, {out / 'eval.json'} (+ plots), {track_dir}/ (poses, BVH, overlay videos)"
-    )
-    return 0
-
-
 # ---------------------------------------------------------------------------------------------------------------
 # sweep
 
@@ -456,7 +345,7 @@ def _demo(args) -> int:
 def _sweep(args) -> int:
     from jaxmocap.tracking import sweep
 
-    _silence_opencv()
+    silence_opencv()
     if args.distributed or args.coordinator is not None:
         import jax  # the multi-process runtime: every process runs this command with the same options
 
@@ -590,8 +479,8 @@ def _add_tracking_commands(sub) -> None:
     tr.add_argument(
         "--preset",
         choices=tuple(_PRESETS),
-        help="a paper's tracker: li-kulic (Li & Kulic's ten-partition filter on full25); options given here or "
-        "in --config override the preset's (README: Presets)",
+        help=f"a paper's tracker: {', '.join(_PRESETS)}; options given here or in --config override the "
+        "preset's (README: Presets)",
     )
     tr.add_argument("--model", choices=_MODELS, help="body model (default: the body file's, else full25)")
     tr.add_argument(
@@ -614,7 +503,8 @@ def _add_tracking_commands(sub) -> None:
     tr.add_argument("--frames", help="frame range A:B (default: all, or a Pose2Sim project's frame_range)")
     tr.add_argument(
         "--init",
-        help="groundtruth, ik or a FILE (.npz with 'state', .npy, text); default: groundtruth if the input has it, else ik",
+        help="groundtruth, ik, head-hands (skin blobs and face) or a FILE (.npz with 'state', .npy, text); default: "
+        "groundtruth if the input has it, else ik",
     )
     tr.add_argument(
         "--body",
@@ -672,6 +562,26 @@ def _add_tracking_commands(sub) -> None:
         ("--reinit-widen", float, "spread of a re-initialisation, times the diffusion (default 3)"),
     ):
         tr.add_argument(flag, type=kind, help=what)
+    tr.add_argument(
+        "--proposal",
+        choices=("auto", "head-hands"),
+        help="detection-driven pose of icondensation / iapf and of re-initialisations: auto (keypoint IK, else "
+        "the silhouette centroid) or head-hands (3D head and hands from skin blobs and the face detector)",
+    )
+    tr.add_argument(
+        "--annealing",
+        choices=("auto", "iros2007"),
+        help="beta of the annealed filters: auto (Deutscher's rule) or iros2007 (fixed 3 layers, "
+        "beta = 0.1, 0.4, 1, dynamics exponents 1, 4, 25)",
+    )
+    for flag, what in (
+        (
+            "--dynamics-fraction",
+            "share of icondensation / iapf particles drawn from the dynamics (default 0.5)",
+        ),
+        ("--detection-fraction", "share drawn around the detection-driven pose (default 0.4)"),
+    ):
+        tr.add_argument(flag, type=float, help=what)
     tr.add_argument("--fsync", action="store_true", default=None, help="fsync every output rewrite")
     tr.add_argument(
         "--resume", action="store_true", default=None, help="continue an interrupted run in --out"
@@ -718,16 +628,16 @@ def _add_tracking_commands(sub) -> None:
     de.add_argument("--out", default="jaxmocap-demo", help="output folder (default ./jaxmocap-demo)")
     de.add_argument(
         "--frames",
-        default=DEMO_FRAMES,
-        help=f"source frame range of the 120 fps clip (default {DEMO_FRAMES})",
+        default=demo.DEMO_FRAMES,
+        help=f"source frame range of the 120 fps clip (default {demo.DEMO_FRAMES})",
     )
-    de.add_argument("--size", default=DEMO_SIZE, help=f"image size (default {DEMO_SIZE})")
+    de.add_argument("--size", default=demo.DEMO_SIZE, help=f"image size (default {demo.DEMO_SIZE})")
     de.add_argument("--filter", choices=_FILTERS, default="apf", help="particle filter (default apf)")
     de.add_argument("--particles", type=int, help="particles per layer (default 300)")
     de.add_argument("--layers", type=int, help="annealing layers (default 5)")
     de.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     de.add_argument("--quiet", action="store_true", help="no progress bar")
-    de.set_defaults(func=_demo)
+    de.set_defaults(func=demo.run)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -32,3 +32,10 @@ def load_toml(path: str | os.PathLike, what: str) -> dict:
         raise MocapInputError(path, f"cannot read the {what}: {e.strerror or e}") from None
     except tomllib.TOMLDecodeError as e:
         raise MocapInputError(path, f"not valid TOML: {e}") from None
+
+
+def silence_opencv() -> None:
+    """OpenCV's own log lines (e.g. about a corrupt PNG chunk) would clutter the one-line error messages."""
+    import cv2
+
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)

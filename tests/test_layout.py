@@ -13,7 +13,7 @@ import jaxmocap
 PKG = pathlib.Path(jaxmocap.__file__).resolve().parent
 WINGS = ("jaxmocap.synth", "jaxmocap.parsec")
 #: the application layer: it may reach every package, wings included
-APP = ("jaxmocap.cli",)
+APP = ("jaxmocap.cli", "jaxmocap.demo")
 
 
 def _module_name(path: pathlib.Path) -> str:

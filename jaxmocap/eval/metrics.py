@@ -272,3 +272,23 @@ def format_table(report: Mapping, title: str | None = None) -> str:
     lines.append(f"{'eq. 7.2 / 7.3':<16}{th['mean_mm']:>10.1f}{th['std_mm']:>10.1f}")
     lines.append(f"frames: {report['num_frames']}")
     return "\n".join(lines)
+
+
+def evaluate_folders(pred: list, gt: str, out: str | None = None, quiet: bool = False):
+    """Evaluate tracking output folders against a sequence's ground truth; write JSON and plots when ``out``."""
+    from jaxmocap.eval import viz
+
+    gt_frames, gt_joints = load_groundtruth(gt)
+    runs = [load_prediction(p) for p in pred]
+    try:
+        report = evaluate(runs, gt_joints, gt_frames, run_names=[str(p) for p in pred])
+    except ValueError as e:
+        raise MocapInputError(pred[0], str(e)) from None
+    if out is not None:
+        out = pathlib.Path(out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        report.save(out)
+        stem = out.with_suffix("")
+        viz.plot_error_over_time(report, f"{stem}_error_over_time.png")
+        viz.plot_per_joint(report, f"{stem}_per_joint.png")
+    return report

@@ -123,6 +123,8 @@ def make_filter(
     survival_target: float = 0.5,
     groups: Sequence[Sequence[int]] | None = None,
     keep_layers: bool = False,
+    annealing: Schedule | None = None,
+    importance: dict | None = None,
 ):
     """Filter ``name`` (:data:`FILTERS`) on ``loglik(X, observation, layer) -> (N,)``.
 
@@ -139,6 +141,11 @@ def make_filter(
     (:class:`jaxmocap.filters.hybrid.HybridAPF`); both need ``loglik`` differentiable in ``X``. ``keep_layers``:
     the APF-based filters (``apf``, ``iapf``, ``fbapf*``, ``m-apf``) return each layer's weighted set in
     ``Info.layer_sets`` (the others ignore it).
+
+    ``annealing``: a schedule replacing the one above for ``apf`` / ``iapf`` (e.g.
+    :meth:`~jaxmocap.filters.annealing.Schedule.iros2007`; its layer count must be ``num_layers``);
+    ``importance``: fields of :class:`~jaxmocap.filters.icondensation.ImportanceOptions`
+    (``dynamics_fraction``, ``detection_fraction``) for ``icondensation`` / ``iapf``.
     """
     if name not in FILTERS:
         raise ValueError(f"unknown filter {name!r}; choose one of {', '.join(FILTERS)}")
@@ -153,6 +160,9 @@ def make_filter(
     scales = tuple(0.25 ** (l / (L - 1)) for l in range(L)) if L > 1 else (1.0,)
     centre = _proposal_centre
     prior = dict(prior_mean=jnp.asarray(prior_mean, dt), prior_std=jnp.asarray(prior_std, dt))
+    prior.update(importance or {})
+    if annealing is not None and annealing.num_layers != L:
+        raise ValueError(f"the annealing schedule has {annealing.num_layers} layers, the filter {L}")
     if name == "sir":
         return SIR(loglik, std, num_particles, **common)
     if name == "icondensation":
@@ -178,6 +188,8 @@ def make_filter(
         )
     else:
         sched = Schedule.deutscher(L, survival_target, diffusion_scales=scales)
+    if annealing is not None:
+        sched = annealing
     if name == "iapf":
         return APF(
             loglik,

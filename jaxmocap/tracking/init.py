@@ -29,6 +29,7 @@ __all__ = [
     "keypoint_pose",
     "move_root_over",
     "reinit_mean",
+    "default_standing",
     "rest_facing",
     "root_translation_dofs",
     "silhouette_centroid",
@@ -124,6 +125,17 @@ def rest_facing(model, rig: camera.Rig, point: np.ndarray) -> np.ndarray:
     return move_root_over(model, x, point)
 
 
+def default_standing(model, rig: camera.Rig, distance: float = 3.0) -> np.ndarray:
+    """The rest pose standing ``distance`` metres in front of the first camera (along its optical axis, on the
+    floor), facing it: where a tracker starts when it sees nobody."""
+    R = np.asarray(rig.R[0], np.float64)
+    centre = np.asarray(camera.camera_centres(rig.to_jax(jnp.float32)), np.float64)[0]
+    axis = R[2].copy()
+    axis[2] = 0.0
+    axis /= max(np.linalg.norm(axis), 1e-9)
+    return rest_facing(model, rig, centre + distance * axis)
+
+
 def check_initial(model: body_mod.BodyModel, source, init: str, t0: int) -> None:
     """Raise :class:`MocapInputError` where ``init`` cannot give a first pose whatever the frame shows (no ground
     truth for ``groundtruth``, an unreadable or wrong-sized file): checked before the step compiles, so a bad option
@@ -132,7 +144,7 @@ def check_initial(model: body_mod.BodyModel, source, init: str, t0: int) -> None
         raise MocapInputError(
             getattr(source, "root", None), "--init groundtruth needs a sequence with groundtruth.npz"
         )
-    if init not in ("auto", "groundtruth", "ik"):
+    if init not in ("auto", "groundtruth", "ik", "head-hands"):
         pose_from_file(model, pathlib.Path(init), t0)
 
 

@@ -35,7 +35,9 @@ needs the initial pose, e.g. colour references); the first call of the step then
 **Track loss.** ``q_t = −max_i log p(z | x_i)`` of the last layer (the energy of the best particle) is compared
 with its median ``q_ref`` over the first frames after the initialisation: the track is lost when
 ``q_t > loss_ratio · q_ref`` for ``loss_frames`` consecutive frames, when the filter found no finite weight
-(``Info.recovered``), or when no view shows any foreground (no person). The filter is then re-initialised around a
+(``Info.recovered``), or when no view shows any foreground (no person) or the setup's detector sees nobody
+(``setup.person_absent(fd)``, the head-and-hands proposal; the quality reference is then learnt again, and the first
+frame where it sees a person again re-initialises the filter on them). The filter is then re-initialised around a
 detection (``setup.reinit_mean``) with ``reinit_widen`` times the diffusion spread. A setup may define ``q_t`` itself
 (``setup.quality(loglik_max)`` of the step's per-layer maxima: a likelihood restricted to each partition's body
 parts sums the partitions' best energies). Every frame's record in
@@ -84,6 +86,8 @@ class LossTracker:
         self.q_ref, self.q_hist, self.lost_run = float("nan"), [], 0
         self.last_good = last_good
         self.hist: list[tuple[int, np.ndarray]] = []
+        #: the setup's detector saw nobody in the last frame (``setup.person_absent``)
+        self.unseen = False
 
     @classmethod
     def from_checkpoint(cls, options, ck) -> LossTracker:
@@ -411,6 +415,9 @@ class TrackingLoop:
                 # detection-driven proposal centre (ICONDENSATION / IAPF) and the no-person test
                 no_person = masks is not None and not np.any(np.sum(masks, axis=(1, 2)) >= 20)
                 centre = setup.detection(fd, masks, loss.last_good)
+                absent = getattr(setup, "person_absent", None)  # a detector that sees nobody
+                unseen = absent is not None and bool(absent(fd))
+                no_person = no_person or unseen
                 if centre is not None:
                     tobs = tobs._replace(centre=jnp.asarray(centre, jnp.float32), valid=jnp.asarray(True))
                 # damped constant-velocity prediction of the root translation
@@ -432,7 +439,13 @@ class TrackingLoop:
                 lost, reinit_source = False, None
                 if setup.track_loss:
                     bad_quality = loss.bad_quality(q)
-                    lost = recovered or no_person or loss.lost_run >= o.loss_frames
+                    # the setup's detector sees a person again after frames without one: re-initialise on them,
+                    # and learn the quality reference again
+                    appeared = loss.unseen and not unseen
+                    loss.unseen = unseen
+                    if unseen:
+                        loss.q_ref, loss.q_hist = float("nan"), []
+                    lost = recovered or no_person or appeared or loss.lost_run >= o.loss_frames
                     if lost:
                         stats["lost_frames"] += 1
                         mean, reinit_source = setup.reinit_mean(fd, masks, loss.last_good)

@@ -139,6 +139,11 @@ def default_cues(model_name: str, has_depth: bool, has_keypoints: bool) -> tuple
     return tuple(out)
 
 
+def cues_text(cues) -> str:
+    """``[("foreground", 1.0), ("coverage", 4.0)]`` → ``"foreground, coverage:4"`` (the ``--cues`` syntax)."""
+    return ", ".join(n if w == 1 else f"{n}:{w:g}" for n, w in cues)
+
+
 def parse_cues(spec: str | Sequence | None) -> tuple[tuple[str, float], ...] | None:
     """``"foreground,edge_distance:2,coverage"`` → ``(("foreground", 1.0), ("edge_distance", 2.0), …)``."""
     if spec is None:
@@ -184,7 +189,13 @@ class TrackOptions:
     ``bvh_units`` (``cm`` or ``m``): the exported track (:mod:`jaxmocap.tracking.outputs`; not part of
     :meth:`identity`: a resumed run may export differently); ``keypoint_layout``: ``auto`` or a layout of
     :data:`jaxmocap.io.keypoints.LAYOUTS`; ``calibration_units``: ``auto``, ``m`` or ``mm``
-    (:func:`jaxmocap.io.calibration.check_units`); ``preset``: a named configuration of
+    (:func:`jaxmocap.io.calibration.check_units`); ``proposal``: the detection-driven pose of ICONDENSATION / IAPF
+    and of a re-initialisation, ``auto`` (IK of the keypoints, else the silhouette centroid) or ``head-hands``
+    (3D head and hands from skin blobs, :mod:`jaxmocap.tracking.head_hands`; ``init = "head-hands"`` starts from
+    it too); ``annealing``: β of the annealed filters, ``auto`` (Deutscher's rule, or the filter's own) or
+    ``iros2007`` (the fixed 3-layer (α_l, β_l) of :meth:`jaxmocap.filters.annealing.Schedule.iros2007`);
+    ``dynamics_fraction`` / ``detection_fraction``: ICONDENSATION's mixture (None: 0.5 / 0.4, the rest from the
+    prior); ``preset``: a named configuration of
     :mod:`jaxmocap.tracking.presets` — its partitions, λ table and cue parameters are read from it by the setup,
     while its option values are applied by :meth:`from_preset` (or :func:`jaxmocap.api.run_options`), under the
     options given explicitly; ``count_modes``: record in each frame's diagnostics the number of modes of the
@@ -222,6 +233,10 @@ class TrackOptions:
     keypoint_layout: str = "auto"
     calibration_units: str = "auto"
     count_modes: bool = False
+    proposal: str = "auto"
+    annealing: str = "auto"
+    dynamics_fraction: float | None = None
+    detection_fraction: float | None = None
 
     @classmethod
     def from_preset(cls, name: str, **options) -> TrackOptions:
@@ -259,12 +274,30 @@ class TrackOptions:
         )
         keys += ("reinit_widen", "keypoint_layout", "calibration_units")
         out = {k: getattr(self, k) for k in keys}
+        for (
+            k,
+            default,
+        ) in _IDENTITY_DEFAULTS.items():  # (absent at their defaults: older runs resume as they were)
+            if getattr(self, k) != default:
+                out[k] = getattr(self, k)
         if self.preset is not None:  # (absent otherwise: runs written before presets resume as they were)
             out["preset"] = self.preset
         if isinstance(self.particles, (list, tuple)):
             out["particles"] = [int(c) for c in self.particles]
         out["cues"] = None if self.cues is None else [list(c) for c in parse_cues(self.cues)]
         return out
+
+
+#: Options of :meth:`TrackOptions.identity` recorded only away from these defaults.
+_IDENTITY_DEFAULTS = {
+    "proposal": "auto",
+    "annealing": "auto",
+    "dynamics_fraction": None,
+    "detection_fraction": None,
+}
+#: The values of ``proposal`` and ``annealing``.
+PROPOSALS = ("auto", "head-hands")
+ANNEALINGS = ("auto", "iros2007")
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -299,7 +332,7 @@ def option_types() -> dict[str, object]:
             out[f.name] = bool
         elif isinstance(default, int):
             out[f.name] = int
-        elif isinstance(default, float):
+        elif isinstance(default, float) or f.name.endswith("_fraction"):
             out[f.name] = float
         else:
             out[f.name] = str

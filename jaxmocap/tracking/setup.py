@@ -25,6 +25,7 @@ import numpy as np
 
 from jaxmocap.choices import parse_frames
 from jaxmocap.errors import MocapInputError
+from jaxmocap.filters.annealing import Schedule
 from jaxmocap.filters.factory import GRADIENT_FILTERS, make_filter, partition_counts
 from jaxmocap.io.sources import BadFrame
 from jaxmocap.likelihood import compose as lk
@@ -33,7 +34,9 @@ from jaxmocap.tracking import init as init_mod
 from jaxmocap.tracking import presets
 from jaxmocap.tracking.features import FeatureBuilder, TrackObservation
 from jaxmocap.tracking.options import (
+    ANNEALINGS,
     FILTERS,
+    PROPOSALS,
     SINGLE_LAYER,
     TrackOptions,
     build_model,
@@ -203,7 +206,24 @@ class TrackSetup:
         if any(n in FOREGROUND_CUES for n, _ in cues) and self.features.foreground == "none":
             raise ValueError("the foreground / coverage cues need a foreground (not --foreground none)")
         self._check_camera_order()
+        if o.proposal not in PROPOSALS:
+            raise ValueError(f"unknown proposal {o.proposal!r}; choose one of {', '.join(PROPOSALS)}")
+        if o.annealing not in ANNEALINGS:
+            raise ValueError(f"unknown annealing {o.annealing!r}; choose one of {', '.join(ANNEALINGS)}")
+        fixed = Schedule.iros2007() if o.annealing == "iros2007" else None
         self.layers = o.layers if o.layers is not None else default_layers(o.filter)[0]
+        if fixed is not None and o.layers is None and o.filter not in SINGLE_LAYER:
+            self.layers = fixed.num_layers
+        if fixed is not None and o.filter not in SINGLE_LAYER and self.layers != fixed.num_layers:
+            raise ValueError(
+                f"--annealing iros2007 has {fixed.num_layers} layers (leave --layers out or set it to 3)"
+            )
+        self.annealing = fixed if o.filter not in SINGLE_LAYER else None
+        self.head_hands = None
+        if o.proposal == "head-hands" or o.init == "head-hands":
+            from jaxmocap.tracking.head_hands import HeadHandsDetector
+
+            self.head_hands = HeadHandsDetector(source.rig)
         if self.layers < 1:
             raise ValueError("--layers must be at least 1")
         if o.filter in SINGLE_LAYER and self.layers != 1:
@@ -359,6 +379,12 @@ class TrackSetup:
             survival_target=self.o.survival_target,
             groups=self.groups,
             keep_layers=bool(self.o.count_modes),
+            annealing=self.annealing,
+            importance={
+                k: float(getattr(self.o, k))
+                for k in ("dynamics_fraction", "detection_fraction")
+                if getattr(self.o, k) is not None
+            },
         )
 
     def compile_arguments(self, key, obs):
@@ -398,11 +424,47 @@ class TrackSetup:
         init_mod.check_initial(self.model, self.source, self.o.init, t0)
 
     def initial_state(self, t0: int, masks, fd) -> tuple[np.ndarray, float, str]:
-        """``(x0, spread factor, how)`` for the first frame (:func:`jaxmocap.tracking.init.initial_state`)."""
+        """``(x0, spread factor, how)`` for the first frame (:func:`jaxmocap.tracking.init.initial_state`);
+        ``init = "head-hands"``: the head-and-hands pose (:meth:`head_hands_pose`), else — nobody seen — the rest
+        pose standing 3 m in front of the first camera (``"default"``, lost until a person is seen)."""
+        if self.o.init == "head-hands":
+            x = self.head_hands_pose(fd, None)
+            if x is not None:
+                return x, 1.0, "head-hands"
+            return init_mod.default_standing(self.model, self.source.rig), 3.0, "default"
         return init_mod.initial_state(self.model, self.source, self.features.rig, self.o.init, t0, masks, fd)
 
+    def head_hands_pose(self, fd, reference) -> np.ndarray | None:
+        """The pose of the frame's head and hands (:mod:`jaxmocap.tracking.head_hands`; ``reference``: the last
+        good estimate), or None when no head is seen. Computed once per frame (the proposal and a
+        re-initialisation share it)."""
+        if fd is None or self.head_hands is None:
+            return None
+        ref = None if reference is None else np.asarray(reference, np.float64).tobytes()
+        if getattr(self, "_hh_fd", None) is not fd or self._hh_ref != ref:
+            from jaxmocap.tracking.head_hands import head_hands_pose
+
+            det = self.head_hands(fd.images, self.model, reference)
+            # the frame is held, so that a later frame cannot take its id
+            self._hh_fd, self._hh_ref, self._hh_seen, self._hh_pose = fd, ref, det is not None, None
+            if det is not None:
+                self._hh_pose = head_hands_pose(self.model, det, reference)
+        return self._hh_pose
+
+    def person_absent(self, fd) -> bool:
+        """With the head-and-hands proposal: no head is seen in the frame (the track counts as lost)."""
+        if self.o.proposal != "head-hands" or fd is None:
+            return False
+        if getattr(self, "_hh_fd", None) is not fd:
+            self.head_hands_pose(fd, None)
+        return not self._hh_seen
+
     def reinit_mean(self, fd, masks, last_good) -> tuple[np.ndarray | None, str | None]:
-        """The re-initialisation pose after a track loss (:func:`jaxmocap.tracking.init.reinit_mean`)."""
+        """The re-initialisation pose after a track loss (:func:`jaxmocap.tracking.init.reinit_mean`; with the
+        head-and-hands proposal, that pose from the frame's skin blobs, or None without a head)."""
+        if self.o.proposal == "head-hands":
+            x = self.head_hands_pose(fd, last_good)
+            return (x, "head-hands") if x is not None else (None, None)
         return init_mod.reinit_mean(self.model, self.source.rig, self.features.rig, fd, masks, last_good)
 
     def detection(self, fd, masks, last_good) -> np.ndarray | None:

@@ -17,7 +17,8 @@ A preset is plain data (:class:`Preset`):
   *variant* (:data:`VARIANTS`): ``--filter VARIANT`` with the preset runs the filter its entry names.
 
 Each paper's preset lives in a module of its own that puts the paper's parameters beside the values chosen here
-and lists what differs or is missing: :mod:`.li_kulic` (``li-kulic``), :mod:`.lopez_mendez` (``lopez-mendez``).
+and lists what differs or is missing: :mod:`.li_kulic` (``li-kulic``), :mod:`.lopez_mendez` (``lopez-mendez``),
+:mod:`.iros2007` (``iros2007``).
 """
 
 from __future__ import annotations
@@ -26,10 +27,12 @@ from collections.abc import Mapping
 
 from jaxmocap.choices import FILTERS, PARTITIONED
 from jaxmocap.tracking.presets.base import FILTER_OPTIONS, Partition, Preset
+from jaxmocap.tracking.presets.iros2007 import IROS2007
 from jaxmocap.tracking.presets.li_kulic import LI_KULIC
 from jaxmocap.tracking.presets.lopez_mendez import LOPEZ_MENDEZ
 
 __all__ = [
+    "IROS2007",
     "LI_KULIC",
     "LOPEZ_MENDEZ",
     "PRESETS",
@@ -44,6 +47,7 @@ __all__ = [
 #: The presets by name.
 PRESETS: dict[str, Preset] = {LI_KULIC.name: LI_KULIC}
 PRESETS[LOPEZ_MENDEZ.name] = LOPEZ_MENDEZ
+PRESETS[IROS2007.name] = IROS2007
 
 #: The presets' variants (``--filter`` names that only a preset knows) → the presets that define them.
 VARIANTS: dict[str, tuple[str, ...]] = {}

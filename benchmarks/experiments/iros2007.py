@@ -1,0 +1,245 @@
+"""Fontmarty, Lerasle & Danès (IROS 2007) end to end: ``--preset iros2007`` on rendered stereo sequences of real CMU
+motions, SIR, ICONDENSATION, APF and IAPF at equal likelihood evaluations per frame, and recovery after the person
+leaves the view and comes back.
+
+Sequences (:func:`jaxmocap.synth.generate.synthesize`, ``stereo`` rig: the robot head, 0.30 m baseline): CMU 02_01
+(walk), charleston1 (Charleston dance, arms swinging), 131_03; 640x480 at 15 fps, face texture, skin-coloured
+head and hands, plain backdrop, no motion blur; ``--frames`` frames from the clip's start. The tracker sees the
+images only: no masks (``--foreground none``), no ground truth, no detections but its own (the first pose from the
+head and hands, :mod:`jaxmocap.tracking.head_hands`); the features are computed at 160x120 (``--downsample 4``), the
+skin blobs and the face at 640x480.
+
+Filters (the preset's cues, σ's and dynamics for all; N likelihood evaluations per frame = 600):
+
+* SIR: 600 particles, one layer;
+* ICONDENSATION: 600 particles, the preset's mixture (0.8 head-and-hands pose, 0.2 dynamics);
+* APF: 200 × 3 layers, the fixed (α_l, β_l) of Table II, no importance sampling;
+* IAPF: the preset (200 × 3, importance sampling in the first layer).
+
+Every run re-initialises on a track loss (the tracker's rule) from the head and hands; the SIR and APF use the
+detections only there. Error of a run: mean over frames and the nine upper-body joints of the 15 evaluation
+joints (:func:`jaxmocap.eval.metrics.evaluate`); reported as mean ± std over the runs (seeds 0 … R−1) per filter and
+sequence, and pooled. Re-initialisation: on the first sequence, frames ``[gap, gap + 5)`` show the empty scene
+(the views' background plates); frames to recover = frames after the person is back until the error comes within
+1.5× the run's median error before the gap (or ≤ 150 mm).
+
+Usage::
+
+    python benchmarks/experiments/iros2007.py --runs 15 --frames 24   # writes benchmarks/results/iros2007.md
+    python benchmarks/experiments/iros2007.py --quick          # 1 sequence, 1 run, 6 frames; writes nothing
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import pathlib
+import sys
+import tempfile
+import time
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmarks/: the shared modules
+import common
+import cv2
+import numpy as np
+
+RESULTS = common.RESULTS / "iros2007.md"
+CMU = (
+    pathlib.Path(os.environ.get("JAXMOCAP_SHARED_DATA", common.ROOT.parent.parent / "shared" / "data"))
+    / "mocap"
+    / "cmu"
+)
+MOTIONS = (
+    ("02_01 walk", "02_01.amc", "02.asf"),
+    ("charleston1", "charleston1.amc", "charleston.asf"),
+    ("131_03", "131_03.bvh", None),
+)
+FILTERS = {
+    "SIR": dict(filter="sir", particles=600),
+    "ICONDENSATION": dict(filter="icondensation", particles=600),
+    "APF": dict(filter="apf", particles=200, layers=3),
+    "IAPF": dict(),
+}
+
+
+def render(tmp: pathlib.Path, frames: int) -> list[tuple[str, pathlib.Path]]:
+    from jaxmocap.synth.generate import synthesize
+
+    out = []
+    for name, clip, asf in MOTIONS:
+        root = tmp / clip.split(".")[0]
+        asf_path = None if asf is None else CMU / asf
+        synthesize(
+            CMU / clip, root, asf=asf_path, frames=f"0:{8 * frames}", fps=15.0, size="640x480",
+            background="plain", detections=False, seed=0, overwrite=True,
+        )  # fmt: skip
+        out.append((name, root))
+    return out
+
+
+class _Gap:
+    """A sequence whose frames ``[start, start + length)`` show the empty scene (the views' background plates)."""
+
+    def __init__(self, root: pathlib.Path, start: int, length: int):
+        from jaxmocap.io.sources import SequenceSource
+
+        self.inner, self.start, self.length = SequenceSource(root), start, length
+        self.plates = [cv2.imread(str(root / "views" / v / "background.png")) for v in self.inner.view_names]
+
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+    def read(self, t, masks=True, depth=True):
+        from jaxmocap.io.sources import FrameData
+
+        if self.start <= t < self.start + self.length:
+            return FrameData([p.copy() for p in self.plates], None, None, None)
+        return self.inner.read(t, masks=False, depth=False)
+
+
+def track(source, out: pathlib.Path, seed: int, options: dict) -> dict:
+    """One run: ``(per-frame error (T,) mm, summary)``."""
+    from jaxmocap.eval import metrics
+    from jaxmocap.io import export
+    from jaxmocap.tracking.options import TrackOptions
+    from jaxmocap.tracking.tracker import Tracker
+
+    o = TrackOptions.from_preset(
+        "iros2007", downsample=4, seed=seed, smooth="none", overwrite=True, **options
+    )
+    summary = Tracker(source, out, o, quiet=True).run()
+    poses = export.load_poses(out)
+    gt_root = source.inner.root if isinstance(source, _Gap) else source.root
+    gt_frames, gt = metrics.load_groundtruth(gt_root)
+    rep = metrics.evaluate([(poses["frame_index"], poses["joints"])], gt, gt_frames)
+    return {"per_frame": np.asarray(rep["per_frame_mm"]), "mean": rep["overall_mean_mm"], "summary": summary}
+
+
+def frames_to_recover(per_frame: np.ndarray, gap: int, length: int) -> int | None:
+    """Frames after the person is back (frame ``gap + length``) until the error is within 1.5× the median before
+    the gap, or 150 mm; None when it never is."""
+    ref = max(1.5 * float(np.median(per_frame[:gap])), 150.0)
+    back = per_frame[gap + length :]
+    hits = np.flatnonzero(back <= ref)
+    return int(hits[0]) if hits.size else None
+
+
+def main(argv=None) -> str:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--runs", type=int, default=3, help="runs (seeds) per filter and sequence")
+    p.add_argument("--frames", type=int, default=24)
+    p.add_argument("--quick", action="store_true")
+    args = p.parse_args(argv)
+    import jax
+
+    jax.config.update(
+        "jax_compilation_cache_dir", str(pathlib.Path(tempfile.gettempdir()) / "jaxmocap_iros2007")
+    )
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
+    runs, frames = (1, 6) if args.quick else (args.runs, args.frames)
+    t_start = time.time()
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = pathlib.Path(tmp)
+        seqs = render(tmp, frames)
+        if args.quick:
+            seqs = seqs[:1]
+        res = {f: {} for f in FILTERS}
+        fps = {f: [] for f in FILTERS}
+        for name, root in seqs:
+            from jaxmocap.io.sources import SequenceSource
+
+            for f, opts in FILTERS.items():
+                res[f][name] = []
+                for seed in range(runs):
+                    r = track(SequenceSource(root), tmp / "run", seed, opts)
+                    res[f][name].append(r["mean"])
+                    fps[f].append(r["summary"]["frames_per_s"])
+                    print(
+                        f"{name} {f} seed {seed}: {r['mean']:.1f} mm, {r['summary']['frames_per_s']:.1f} frames/s",
+                        file=sys.stderr,
+                    )
+        gap, length = (2, 2) if args.quick else (frames // 2, 5)
+        recover = {f: [] for f in ("APF", "IAPF")}
+        for f in recover:
+            for seed in range(runs):
+                r = track(_Gap(seqs[0][1], gap, length), tmp / "run", seed, FILTERS[f])
+                recover[f].append(frames_to_recover(r["per_frame"], gap, length))
+    return report(res, fps, recover, runs, frames, gap, length, seqs, time.time() - t_start, args.quick)
+
+
+def _ms(v) -> str:
+    v = np.asarray(v, np.float64)
+    return f"{v.mean():.0f} ± {v.std():.0f}"
+
+
+def report(res, fps, recover, runs, frames, gap, length, seqs, wall, quick) -> str:
+    names = [n for n, _ in seqs]
+    lines = [
+        "# IROS 2007 end to end: `--preset iros2007` (Fontmarty, Lerasle & Danès)",
+        "",
+        f"{common.stamp()}; {common.machine_line()}; {wall / 60:.0f} min. Sequences: {', '.join(names)} (CMU), "
+        f"{frames} frames at 15 fps each, stereo 640x480 rendered, tracked at 160x120 (skin blobs and face at "
+        f"640x480), plain backdrop; no masks, no ground truth in the runs (first pose from the head and hands). "
+        f"{runs} runs (seeds) per filter and sequence (the paper: 15). Set-up: the module docstring.",
+        "",
+        "| filter | N × layers | " + " | ".join(names) + " | pooled (mm) | frames/s |",
+        "|---|---|" + "---|" * len(names) + "---|---|",
+    ]
+    counts = {"SIR": "600 × 1", "ICONDENSATION": "600 × 1", "APF": "200 × 3", "IAPF": "200 × 3"}
+    pooled = {f: np.concatenate([np.asarray(res[f][n]) for n in names]) for f in res}
+    for f in res:
+        cells = [_ms(res[f][n]) for n in names]
+        lines.append(
+            f"| {f} | {counts[f]} | " + " | ".join(cells) + f" | {_ms(pooled[f])} | {np.median(fps[f]):.1f} |"
+        )
+    m = {f: float(pooled[f].mean()) for f in pooled}
+    s = {f: float(pooled[f].std()) / max(np.sqrt(len(pooled[f])), 1.0) for f in pooled}
+
+    def verdict(ok: bool) -> str:
+        return "**holds**" if ok else "**does not hold**"
+
+    close = abs(m["IAPF"] - m["APF"]) <= 2 * np.hypot(s["IAPF"], s["APF"])
+    order = m["APF"] < m["ICONDENSATION"] < m["SIR"] and m["IAPF"] < m["ICONDENSATION"]
+    gain = 1 - m["IAPF"] / m["ICONDENSATION"]
+    rec = {f: [r for r in v if r is not None] for f, v in recover.items()}
+
+    def rec_text(f):
+        v = rec[f]
+        miss = len(recover[f]) - len(v)
+        return (f"{np.mean(v):.1f} frames (runs: {recover[f]})" if v else "never") + (
+            f", {miss} of {len(recover[f])} runs never" if miss and v else ""
+        )
+
+    lines += [
+        "",
+        "Claims of the paper (pooled means; ± is the standard error of the pooled mean):",
+        "",
+        f"- IAPF ≈ APF < ICONDENSATION < SIR: IAPF {m['IAPF']:.0f} ± {s['IAPF']:.0f}, APF {m['APF']:.0f} ± "
+        f"{s['APF']:.0f}, ICONDENSATION {m['ICONDENSATION']:.0f} ± {s['ICONDENSATION']:.0f}, SIR {m['SIR']:.0f} ± "
+        f"{s['SIR']:.0f} mm — IAPF ≈ APF (within 2 standard errors) {verdict(close)}; the order "
+        f"{verdict(order)}.",
+        f"- IAPF lowers the error against ICONDENSATION (paper: 70 % on its synthetic system): {gain * 100:+.0f} % "
+        f"here — {verdict(gain >= 0.5)} (as ≥ 50 %); lower at all {verdict(gain > 0)}.",
+        f"- IAPF re-initialises after a transient loss where the APF does not (the person leaves the view for "
+        f"{length} frames at frame {gap} of {names[0]}): frames to recover after the person is back, IAPF "
+        f"{rec_text('IAPF')}, APF {rec_text('APF')} — "
+        + verdict(bool(rec["IAPF"]) and (not rec["APF"] or np.mean(rec["IAPF"]) < np.mean(rec["APF"])))
+        + " (here the APF re-initialises too: the tracker's track-loss rule re-initialises every filter from the "
+        "head and hands when a person appears).",
+        f"- Speed: {np.median(fps['IAPF']):.1f} frames/s end to end for the IAPF at 160x120 features (640x480 "
+        "images decoded, skin and face at full size) on the 2-core CPU shared with other work (the load average "
+        "above); the paper: 1–4 Hz on a Pentium IV. "
+        "The 30 frames/s goal at 640x480 features was not measured here.",
+        "",
+        "Not done: the cue ablation in clutter (none / medium / high). In the cluttered room "
+        '(`background="room", clutter="medium"`) the skin blobs found no head in any of 30 frames of 131_03 '
+        "(the face's blob merges with skin-coloured clutter behind it), so these sequences use a plain backdrop.",
+    ]
+    text = "\n".join(lines)
+    return common.report(
+        RESULTS, text, "python benchmarks/experiments/iros2007.py --runs 15 --frames 24", write=not quick
+    )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,252 @@
+"""Head and hands from skin blobs: the importance function of Fontmarty, Lerasle & Danès (IROS 2007, §IV-A).
+
+Per frame, on the full-size images of a calibrated pair (views ``(0, 1)``):
+
+1. skin probability of each view (:meth:`jaxmocap.features.skin.SkinModel.probability_u8`), its ``max_blobs``
+   largest skin regions (:func:`jaxmocap.features.blobs.skin_blobs`), matched across the pair under the epipolar
+   constraint and triangulated (:func:`jaxmocap.features.blobs.stereo_blobs`): candidate 3D blobs ``b_k`` with
+   their first-view centroids ``u_k``;
+2. candidates outside the space a person can occupy are dropped: height ``z`` outside ``height_range`` (metres,
+   world ``z`` up, floor at 0) or farther than ``max_range`` from the first camera (skin-coloured things on the
+   walls);
+3. the head (:func:`choose_head`): the blob whose first-view centroid lies in a face found by the Haar detector
+   (:class:`jaxmocap.features.face.FaceDetector`; the face box nearest the blob when several), else — no face
+   found, or none over a blob — the highest candidate whose height is at least ``min_head_height``;
+4. the hands: the two other candidates within ``reach`` of the head with the best scores (match confidence ×
+   mean skin probability of the blob) whose size is a hand's (the disc of the blob's area at its depth has a
+   radius of at most ``hand_radius``, 8 cm); a missing hand gets weight 0
+   in the IK;
+5. left / right (:func:`assign_hands`): the assignment nearest to the wrists of a reference pose (the last good
+   estimate) when there is one, else the person faces the first camera, so that the person's left hand is on the
+   camera's right (larger ``x`` in its frame);
+6. :func:`jaxmocap.fit.ik.from_head_hands` to the model's configuration nearest the reference pose (or the rest
+   pose) that puts the head joint and the wrists on the blobs (:func:`head_hands_pose`).
+
+Everything here runs on the host (OpenCV) except the IK, which is compiled once per model.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+
+from jaxmocap.features.blobs import skin_blobs, stereo_blobs
+from jaxmocap.fit import ik
+from jaxmocap.geometry import camera
+from jaxmocap.tracking.init import joint_positions, root_translation_dofs
+
+__all__ = ["HeadHands", "HeadHandsDetector", "assign_hands", "choose_head", "head_hands_pose"]
+
+
+class HeadHands(NamedTuple):
+    """One frame's detection: ``head (3,)``, ``left (3,)``, ``right (3,)`` metres, ``weights (3,)`` (head, left,
+    right; 0 for a hand not seen) and ``how``: ``"face"`` (the head chosen by the face detector) or ``"highest"``."""
+
+    head: np.ndarray
+    left: np.ndarray
+    right: np.ndarray
+    weights: np.ndarray
+    how: str
+
+
+def choose_head(
+    points: np.ndarray, centroids: np.ndarray, faces: np.ndarray, min_head_height: float = 1.0
+) -> tuple[int | None, str]:
+    """Index of the head among candidate blobs and how it was chosen.
+
+    ``points (K, 3)``: the candidates' 3D positions; ``centroids (K, 2)``: their first-view pixel centroids;
+    ``faces (F, 4)``: face boxes ``(x, y, w, h)`` in that view. A blob whose centroid lies in a face box is the head
+    (``"face"``; among several, the one nearest its box's centre); else the highest blob with ``z ≥
+    min_head_height`` (``"highest"``); ``(None, "none")`` when neither exists."""
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    uv = np.asarray(centroids, np.float64).reshape(-1, 2)
+    best, best_d = None, np.inf
+    for x, y, w, h in np.asarray(faces, np.float64).reshape(-1, 4):
+        inside = (uv[:, 0] >= x) & (uv[:, 0] <= x + w) & (uv[:, 1] >= y) & (uv[:, 1] <= y + h)
+        d = np.hypot(uv[:, 0] - (x + w / 2), uv[:, 1] - (y + h / 2))
+        for k in np.flatnonzero(inside):
+            if d[k] < best_d:
+                best, best_d = int(k), float(d[k])
+    if best is not None:
+        return best, "face"
+    tall = np.flatnonzero(pts[:, 2] >= min_head_height)
+    if tall.size == 0:
+        return None, "none"
+    return int(tall[np.argmax(pts[tall, 2])]), "highest"
+
+
+def assign_hands(
+    hands: np.ndarray, rig: camera.Rig, model=None, reference: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(left, right)`` of two hand positions ``hands (2, 3)``: the assignment nearest the wrists of ``model`` at
+    ``reference`` (a pose ``(D,)``) when given, else the one with the person's left hand on the first camera's right
+    (larger camera ``x``: a person facing the camera)."""
+    h = np.asarray(hands, np.float64)
+    if reference is not None and model is not None:
+        J = np.asarray(joint_positions(model, jnp.asarray(reference, model.offset.dtype)), np.float64)
+        names = model.joint_names
+        wl, wr = J[names.index("left_wrist")], J[names.index("right_wrist")]
+        straight = np.linalg.norm(h[0] - wl) + np.linalg.norm(h[1] - wr)
+        crossed = np.linalg.norm(h[1] - wl) + np.linalg.norm(h[0] - wr)
+        return (h[0], h[1]) if straight <= crossed else (h[1], h[0])
+    R, t = np.asarray(rig.R[0], np.float64), np.asarray(rig.t[0], np.float64)
+    xc = h @ R[0] + t[0]
+    return (h[0], h[1]) if xc[0] >= xc[1] else (h[1], h[0])
+
+
+class HeadHandsDetector:
+    """Head and hands of a frame (module docstring, steps 1–5): ``detector(images) -> HeadHands | None``.
+
+    ``rig``: the calibration of the full-size ``images`` (BGR ``uint8``, one per view); ``views``: the stereo
+    pair; ``skin_model`` / ``face_detector``: default the package's skin model and OpenCV's frontal-face
+    cascade (``face=False``: no face detection, the head is the highest blob); ``min_area``: the smallest blob
+    in pixels (default 20 at 640×480, in proportion to the image area, at least 4)."""
+
+    def __init__(
+        self,
+        rig: camera.Rig,
+        views: tuple[int, int] = (0, 1),
+        skin_model=None,
+        face: bool = True,
+        threshold: float = 0.5,
+        max_blobs: int = 6,
+        min_area: int | None = None,
+        max_epipolar: float = 5.0,
+        height_range: tuple[float, float] = (0.3, 2.3),
+        max_range: float = 6.0,
+        min_head_height: float = 1.0,
+        reach: float = 1.2,
+        hand_radius: float = 0.08,
+    ):
+        from jaxmocap.features.skin import default_skin_model
+
+        if rig.num_views < 2:
+            raise ValueError("head and hands from skin blobs need a stereo pair (two views or more)")
+        self.rig, self.views = rig, tuple(views)
+        self.skin_model = skin_model or default_skin_model()
+        self.face_detector = None
+        if face:
+            from jaxmocap.features.face import FaceDetector
+
+            # faces of a person a few metres away are small: a lower size limit than OpenCV's default
+            self.face_detector = FaceDetector(min_size=(12, 12), min_neighbors=4)
+        if min_area is None:  # 20 pixels at 640x480, in proportion to the image area
+            w, h = rig.image_size[0]
+            min_area = max(4, round(20 * w * h / (640 * 480)))
+        self.threshold, self.max_blobs, self.min_area = float(threshold), int(max_blobs), int(min_area)
+        self.max_epipolar = float(max_epipolar)
+        self.height_range, self.max_range = tuple(height_range), float(max_range)
+        self.min_head_height, self.reach = float(min_head_height), float(reach)
+        self.hand_radius = float(hand_radius)
+        self._centre = np.asarray(camera.camera_centres(rig.to_jax(jnp.float32)), np.float64)[self.views[0]]
+
+    def candidates(self, images) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(points (K, 3), first-view centroids (K, 2), scores (K,), radii (K,))`` of the plausible matched blobs;
+        a score is the match's confidence times the blob's mean skin probability in the first view (a hand is skin
+        through and through; a noisy patch of clothing is skin in places); a radius, metres, is that of the disc
+        of the blob's first-view area at its depth, ``√(A/π) Z / f``."""
+        i, j = self.views
+        prob = [self.skin_model.probability_u8(images[v]) for v in (i, j)]
+        blobs = [
+            skin_blobs(p, self.threshold, self.max_blobs, self.min_area, with_labels=(k == 0))
+            for k, p in enumerate(prob)
+        ]
+        pts, conf, matches = stereo_blobs(
+            self.rig, blobs, (i, j), self.max_blobs, max_epipolar=self.max_epipolar
+        )
+        n = len(matches)
+        pts, conf = pts[:n], conf[:n]
+        first = [m.i for m in matches]
+        uv = blobs[0].centroids[first].reshape(-1, 2)
+        lab = blobs[0].labels.ravel()
+        sums = np.bincount(lab, prob[0].ravel().astype(np.float64), minlength=self.max_blobs + 1)
+        counts = np.bincount(lab, minlength=self.max_blobs + 1)
+        skinness = sums[1:] / np.maximum(counts[1:], 1) / 255.0
+        score = conf * skinness[first] if n else conf
+        R, t, K = (np.asarray(a[i], np.float64) for a in (self.rig.R, self.rig.t, self.rig.K))
+        depth = pts @ R[2] + t[2]
+        radius = np.sqrt(blobs[0].areas[first] / np.pi) * depth / K[0, 0] if n else conf
+        lo, hi = self.height_range
+        ok = (pts[:, 2] >= lo) & (pts[:, 2] <= hi)
+        ok &= np.linalg.norm(pts - self._centre, axis=1) <= self.max_range
+        return pts[ok], uv[ok], score[ok], radius[ok]
+
+    def faces_near(self, image: np.ndarray, uv: np.ndarray, half: int = 48) -> np.ndarray:
+        """Face boxes ``(F, 4)`` found in windows of ``2·half`` pixels around the centroids ``uv (K, 2)`` (a face
+        is searched for only where a candidate blob is: a fraction of the cost of the whole image)."""
+        H, W = image.shape[:2]
+        out = []
+        for u, v in np.asarray(uv, np.float64).reshape(-1, 2):
+            x0, y0 = max(int(u) - half, 0), max(int(v) - half, 0)
+            crop = image[y0 : min(int(v) + half, H), x0 : min(int(u) + half, W)]
+            if min(crop.shape[:2]) < 2 * self.face_detector.min_size[0]:
+                continue
+            for x, y, w, h in self.face_detector.detect(crop):
+                out.append((x + x0, y + y0, w, h))
+        return np.asarray(out, np.float64).reshape(-1, 4)
+
+    def __call__(self, images, model=None, reference: np.ndarray | None = None) -> HeadHands | None:
+        """The frame's head and hands, or None without a head (``model``/``reference``: :func:`assign_hands`)."""
+        pts, uv, conf, radius = self.candidates(images)
+        faces = np.zeros((0, 4))
+        if self.face_detector is not None and len(pts):
+            faces = self.faces_near(images[self.views[0]], uv)
+        k, how = choose_head(pts, uv, faces, self.min_head_height)
+        if k is None:
+            return None
+        head = pts[k]
+        rest = [m for m in np.argsort(-conf, kind="stable") if m != k]
+        rest = [
+            m for m in rest if np.linalg.norm(pts[m] - head) <= self.reach and radius[m] <= self.hand_radius
+        ]
+        rest = rest[:2]
+        hands = np.repeat(head[None], 2, axis=0)
+        weights = np.array([1.0, 0.0, 0.0])
+        if len(rest) == 2:
+            left, right = assign_hands(pts[rest], self.rig, model, reference)
+            return HeadHands(head, left, right, np.ones(3), how)
+        if len(rest) == 1:  # one hand: on the side the reference (or the camera, against the head) puts it
+            left, _ = assign_hands(np.stack([pts[rest[0]], head]), self.rig, model, reference)
+            side = 0 if np.array_equal(left, pts[rest[0]]) else 1
+            hands[side] = pts[rest[0]]
+            weights[1 + side] = 1.0
+        return HeadHands(head, hands[0], hands[1], weights, how)
+
+
+def head_hands_pose(model, det: HeadHands, reference: np.ndarray | None = None) -> np.ndarray | None:
+    """The configuration ``(D,)`` of :func:`jaxmocap.fit.ik.from_head_hands` for detection ``det``: started from
+    ``reference`` (the last good estimate) moved so that its head is on the detected head when given, else from the
+    rest pose turned along the hands; the prior pulls the angles towards the reference (or the rest pose). None
+    when the fit is not finite."""
+    dt = model.offset.dtype
+    init = prior = None
+    if reference is not None:
+        prior = jnp.asarray(reference, dt)
+        init = ik.head_hands_init(
+            model, jnp.asarray(det.head, dt), jnp.asarray(det.left, dt), jnp.asarray(det.right, dt), prior
+        )
+        if not np.all(det.weights[1:] > 0):  # a hand missing: keep the reference's heading
+            init = _shift_head(model, np.asarray(reference, np.float64), det.head)
+    fit = ik.from_head_hands(
+        model,
+        jnp.asarray(det.head, dt),
+        jnp.asarray(det.left, dt),
+        jnp.asarray(det.right, dt),
+        weights=jnp.asarray(det.weights, dt),
+        init=None if init is None else jnp.asarray(init, dt),
+        prior_mean=prior,
+    )
+    x = np.asarray(fit.state, np.float64)
+    return x if np.all(np.isfinite(x)) else None
+
+
+def _shift_head(model, x: np.ndarray, head: np.ndarray) -> np.ndarray:
+    """``x`` with its root translated so that its head joint is at ``head``."""
+    J = np.asarray(joint_positions(model, jnp.asarray(x, model.offset.dtype)), np.float64)
+    trans = root_translation_dofs(model)
+    A = np.asarray(model.dof_axis, np.float64)[trans].T
+    out = x.copy()
+    out[trans] += np.linalg.pinv(A) @ (np.asarray(head) - J[model.joint_names.index("head")])
+    return out
