@@ -54,7 +54,7 @@ from jaxmocap.synth import generate as synth
 from jaxmocap.tracking.options import TrackOptions
 
 RESULTS = common.RESULTS / "lopez_mendez.md"
-#: the shared motion capture (``shared/data/mocap`` beside the checkout, or beside a worktree's parent folder)
+#: the shared motion capture (``shared/data/mocap`` beside the checkout or beside one of its parent folders)
 MOCAP = next(
     (
         d
