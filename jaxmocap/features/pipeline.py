@@ -255,9 +255,8 @@ class FeatureExtractor:
         blobs3d = conf = None
         if c.blobs:
             i, j = c.stereo_pair
-            if (
-                c.blob_source == "bands"
-            ):  # a band is a few pixels wide: keep it whole (no opening), small ones too
+            # a band is a few pixels wide: kept whole (no opening), small ones too
+            if c.blob_source == "bands":
                 pair = [
                     skin_blobs(
                         band_mask(frames[v], c.band_hsv), 0.5, c.max_blobs, 4, open_size=1, close_size=3
