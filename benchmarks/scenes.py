@@ -151,19 +151,19 @@ class CachedTracker(tracker.Tracker):
             self._obs_cache[t] = super()._observe(t)
         return self._obs_cache[t]
 
-    def run_seeds(self, seeds: int, seq_dir) -> tuple[list[float], list[dict]]:
+    def run_seeds(self, seeds: int, seq_dir) -> tuple[list[float], list[dict], list[tuple]]:
         """Runs with seeds ``0 … seeds − 1``: each run's error against the sequence's ground truth (thesis eq. 7.1
-        averaged over frames, mm) and its summary."""
+        averaged over frames, mm), its summary and its prediction (:func:`jaxmocap.eval.metrics.load_prediction`)."""
         from jaxmocap.eval import metrics
 
         gt_frames, gt = metrics.load_groundtruth(seq_dir)
-        errors, summaries = [], []
+        errors, summaries, runs = [], [], []
         for s in range(seeds):
             self.o.seed = s
             summaries.append(self.run())
-            rep = metrics.evaluate([metrics.load_prediction(self.out)], gt, gt_frames)
-            errors.append(float(rep["overall_mean_mm"]))
-        return errors, summaries
+            runs.append(metrics.load_prediction(self.out))
+            errors.append(float(metrics.evaluate(runs[-1:], gt, gt_frames)["overall_mean_mm"]))
+        return errors, summaries, runs
 
     @property
     def median_step_s(self) -> float:

@@ -26,6 +26,10 @@ GRADIENT_FILTERS = ("hybrid", "apf-refine")
 #: Filters that split the DOFs into groups, one particle count per group.
 PARTITIONED = ("partitioned", "hierarchical")
 FOREGROUNDS = ("auto", "mask", "plate", "median", "mog2", "adaptive", "none")
+#: Detection-driven poses of ICONDENSATION / IAPF and of re-initialisations (``--proposal``).
+PROPOSALS = ("auto", "head-hands")
+#: β rules of the annealed filters (``--annealing``).
+ANNEALINGS = ("auto", "iros2007")
 #: Layouts of 2D keypoint files (:mod:`jaxmocap.io.keypoints`).
 KEYPOINT_LAYOUTS = ("BODY_25", "BODY_25B", "HALPE_26", "COCO_17", "COCO_133", "MEDIAPIPE_33")
 

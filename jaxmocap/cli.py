@@ -515,8 +515,8 @@ def _add_tracking_commands(sub) -> None:
         "--foreground",
         choices=_FOREGROUNDS,
         help="foreground source: mask (a sequence's masks), plate (subtraction against each camera's empty-scene "
-        "image), median (a median background of the run's frames), mog2, none; default: masks, else plates, "
-        "else median",
+        "image), median (a median background of the run's frames), mog2, adaptive (López Méndez's adaptive "
+        "Gaussian with shadow removal), none; default: masks, else plates, else median",
     )
     tr.add_argument(
         "--downsample", type=int, choices=(1, 2, 4), help="process images at 1/1, 1/2 or 1/4 size"
@@ -564,13 +564,13 @@ def _add_tracking_commands(sub) -> None:
         tr.add_argument(flag, type=kind, help=what)
     tr.add_argument(
         "--proposal",
-        choices=("auto", "head-hands"),
+        choices=choices.PROPOSALS,
         help="detection-driven pose of icondensation / iapf and of re-initialisations: auto (keypoint IK, else "
         "the silhouette centroid) or head-hands (3D head and hands from skin blobs and the face detector)",
     )
     tr.add_argument(
         "--annealing",
-        choices=("auto", "iros2007"),
+        choices=choices.ANNEALINGS,
         help="beta of the annealed filters: auto (Deutscher's rule) or iros2007 (fixed 3 layers, "
         "beta = 0.1, 0.4, 1, dynamics exponents 1, 4, 25)",
     )

@@ -55,7 +55,6 @@ os.environ.setdefault("JAX_PLATFORMS", "cpu")
 import common
 from scenes import CachedTracker, Config, make_sequences, open_source, track_options
 
-from jaxmocap.eval import metrics
 from jaxmocap.filters.factory import particles_text, partition_groups  # noqa: E402
 from jaxmocap.tracking.options import FILTERS, build_model  # noqa: E402
 
@@ -73,19 +72,10 @@ def run_config(
     masks and ground-truth initialisation, :func:`scenes.open_source`)."""
     source = open_source(seq_dir, oracle)
     try:
-        options = track_options(cfg, oracle)
-        out = work / "track"
-        run = CachedTracker(source, out, options, quiet=True)
-        gt_frames, gt_joints = metrics.load_groundtruth(seq_dir)
-        errors, lost = [], []
-        for s in range(seeds):
-            run.o.seed = s
-            summary = run.run()
-            rep = metrics.evaluate([metrics.load_prediction(out)], gt_joints, gt_frames)
-            errors.append(float(rep["overall_mean_mm"]))
-            lost.append(int(summary.get("lost_frames", 0) or 0))
-        steady = run.step_seconds[1:] if len(run.step_seconds) > 1 else run.step_seconds
-        return {"errors": errors, "step_s": float(np.median(steady)), "lost": lost}
+        run = CachedTracker(source, work / "track", track_options(cfg, oracle), quiet=True)
+        errors, summaries, _ = run.run_seeds(seeds, seq_dir)
+        lost = [int(s.get("lost_frames", 0) or 0) for s in summaries]
+        return {"errors": errors, "step_s": run.median_step_s, "lost": lost}
     finally:
         source.close()
 

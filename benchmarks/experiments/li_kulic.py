@@ -78,7 +78,7 @@ PAPER_TABLE_I = {"all cues": 16.4, "without edge": 14.6, "without depth": 34.8, 
 PAPER_OVERALL = (19.1, 12.9, 1.1)
 
 
-def options(label: str, seed: int = 0, **over) -> TrackOptions:
+def options(seed: int = 0, **over) -> TrackOptions:
     """The preset's options for a configuration (``over``: the options that differ), realistic input."""
     return TrackOptions.from_preset(
         "li-kulic", init="ik", foreground="plate", overwrite=True, seed=seed, **over
@@ -127,20 +127,14 @@ def run_one(seq_dir: pathlib.Path, over: dict, seeds: int, work: pathlib.Path) -
             over = {k: v for k, v in over.items() if k != "preset"}
             o = TrackOptions(model="full25", init="ik", foreground="plate", overwrite=True, **over)
         else:
-            o = options("", **over)
-        out = work / "track"
-        run = CachedTracker(source, out, o, quiet=True)
+            o = options(**over)
+        run = CachedTracker(source, work / "track", o, quiet=True)
+        _, summaries, runs = run.run_seeds(seeds, seq_dir)
         gt_frames, gt = metrics.load_groundtruth(seq_dir)
-        runs, fps, lost = [], [], []
-        for s in range(seeds):
-            run.o.seed = s
-            summary = run.run()
-            runs.append(metrics.load_prediction(out))
-            fps.append(float(summary.get("frames_per_s") or np.nan))
-            lost.append(int(summary.get("lost_frames") or 0))
+        fps = [float(s.get("frames_per_s") or np.nan) for s in summaries]
+        lost = [int(s.get("lost_frames") or 0) for s in summaries]
         ev = metrics.evaluate(runs, gt, gt_frames)
-        steady = run.step_seconds[1:] if len(run.step_seconds) > 1 else run.step_seconds
-        return {"eval": ev, "step_s": float(np.median(steady)), "fps": float(np.nanmedian(fps)), "lost": lost}
+        return {"eval": ev, "step_s": run.median_step_s, "fps": float(np.nanmedian(fps)), "lost": lost}
     finally:
         source.close()
 
@@ -356,7 +350,7 @@ def overlay(size: str = "320x240", path: pathlib.Path = common.RESULTS / "li_kul
         ):
             source = RecordingSource(d)
             try:
-                run = CachedTracker(source, work / "track", options("", **over), quiet=True)
+                run = CachedTracker(source, work / "track", options(**over), quiet=True)
                 run.run()
                 poses = export.load_poses(work / "track")
                 t = int(poses["frame_index"][-1])

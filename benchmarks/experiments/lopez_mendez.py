@@ -89,7 +89,7 @@ def run_scheme(seq: pathlib.Path, scheme: str, runs: int, work: pathlib.Path, pa
             "lopez-mendez", filter=scheme, init="ik", particles=particles, overwrite=True, smooth="none"
         )
         tr = CachedTracker(source, work / "track", o, quiet=True)
-        errors, summaries = tr.run_seeds(runs, seq)
+        errors, summaries, _ = tr.run_seeds(runs, seq)
         fps = [r.get("frames_per_s") or float("nan") for r in summaries]
         return {"errors": errors, "step_s": tr.median_step_s, "run_fps": float(np.median(fps))}
     finally:

@@ -9,8 +9,8 @@ fills the observation's 3D blob slots that the ``wristband`` cue reads.
 The default box, :data:`LIME`, fits the saturated lime green (RGB ``(0.55, 0.90, 0.05)``, hue 85°) of the bands
 that ``jaxmocap synth --wrist-bands`` draws: hue 76–94° (``H`` 38–47), saturation above 0.7, value above 0.39,
 which leaves out skin (hue 0–50°), the clothing colours, grey backgrounds and the dark olive of the photo
-background's curtain. A black band, as in the paper, cannot
-be told from hair, shadows and dark clothing by colour alone; give the box of the bands actually worn.
+background's curtain. A black band, as in the paper, cannot be told from hair, shadows and dark clothing by colour
+alone; give the box of the bands actually worn.
 """
 
 from __future__ import annotations

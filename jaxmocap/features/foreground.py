@@ -193,13 +193,15 @@ def plate_background(
     shadow: ShadowParams | None = PLATE_SHADOW,
     open_size: int = 1,
     dilate_size: int = 1,
+    threshold: float | None = None,
 ) -> StaticBackground:
     """A :class:`StaticBackground` against a recorded empty-scene ``plate`` ``(H, W, 3)`` BGR uint8.
 
     ``sigma``: the sensor noise (8-bit units); None estimates it from the plate (:func:`noise_sigma`). A frame
     and the plate each carry that noise, so their difference has ``√2 σ``: the threshold is four of those,
-    ``T = max(8, 4 √2 σ)`` per channel, and the shadow test (``shadow``; None: no shadow removal) uses
-    ``√2 σ`` (at least 1) as its noise scale. ``open_size`` / ``dilate_size``: :func:`clean_mask` (default none).
+    ``T = max(8, 4 √2 σ)`` per channel (``threshold`` given: that instead), and the shadow test (``shadow``;
+    None: no shadow removal) uses ``√2 σ`` (at least 1) as its noise scale. ``open_size`` / ``dilate_size``:
+    :func:`clean_mask` (default none).
     """
     plate = _check_frame(plate, what="plate")
     sigma = noise_sigma(plate) if sigma is None else float(sigma)
@@ -207,7 +209,7 @@ def plate_background(
         raise ValueError(f"sensor noise must be finite and non-negative, got {sigma}")
     return StaticBackground(
         plate,
-        max(8.0, 4.0 * np.sqrt(2.0) * sigma),
+        max(8.0, 4.0 * np.sqrt(2.0) * sigma) if threshold is None else threshold,
         open_size=open_size,
         dilate_size=dilate_size,
         shadow=shadow,

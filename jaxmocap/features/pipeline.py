@@ -163,9 +163,7 @@ class FeatureExtractor:
         erodes limbs a few pixels wide (on the 96×72 walk it halves the IoU with the exact masks)."""
         frames = self._check_frames(plates)
         sigmas = [None] * len(frames) if sigmas is None else list(sigmas)
-        self.backgrounds = [
-            plate_background(f, s, open_size=1, dilate_size=1) for f, s in zip(frames, sigmas, strict=True)
-        ]
+        self.backgrounds = [plate_background(f, s) for f, s in zip(frames, sigmas, strict=True)]
 
     def set_background_depth(self, depths) -> None:
         """Background depth per view (metres, 0 = unknown), full size; for ``foreground="depth"``."""

@@ -535,7 +535,7 @@ class Likelihood:
         and one reverse pass through it when differentiated); ``by_runs``: :meth:`_surface_geometry`;
         ``partition``: as in :meth:`batch`."""
         aux = self.prepare(obs) if aux is None else aux
-        part = self._part(_partition_of(layer, partition))
+        part = self._part(layer_partition(layer, partition))
         table = self._table_cues()
         pose = self.pose_stage(x)
         ll = self._table_loglik(pose, obs, aux, self._table_lambda(layer), by_runs, part) if table else 0.0
@@ -553,7 +553,7 @@ class Likelihood:
         (:meth:`with_partitions`) the cues weigh that partition's body parts; ignored without one.
         """
         aux = self.prepare(obs)
-        part = self._part(_partition_of(layer, partition))
+        part = self._part(layer_partition(layer, partition))
         table, separate = self._table_cues(), self._separate_cues()
         N, D = X.shape
         if table:
@@ -711,8 +711,9 @@ jax.tree_util.register_dataclass(
 )
 
 
-def _partition_of(layer, partition):
-    """The partition to weigh: ``partition`` when given, else the ``partition`` of a filter's layer, else 0."""
+def layer_partition(layer, partition=None):
+    """The partition to weigh: ``partition`` when given, else the ``partition`` of a filter's
+    :class:`~jaxmocap.filters.base.Layer`, else 0 (a bare layer index)."""
     return getattr(layer, "partition", 0) if partition is None else partition
 
 

@@ -68,27 +68,25 @@ def subtractors(
     shadow: fg.ShadowParams | None | str = "auto",
     open_size: int = 1,
 ) -> list[fg.StaticBackground]:
-    """One static-background model per view of ``seq``, against its plate (BGR, like the frames it segments).
+    """One static-background model per view of ``seq``, against its plate (BGR, like the frames it segments):
+    :func:`jaxmocap.features.foreground.plate_background` with the sequence's known sensor noise ``σ``
+    (``meta["noise"]["rgb_sigma"] · 255``).
 
-    ``thresholds`` (8-bit units) default to ``max(8, 4 √2 σ)`` with ``σ`` the sequence's sensor noise
-    (``meta["noise"]["rgb_sigma"] · 255``): four standard deviations of the difference of two noisy exposures.
-    ``shadow``: Horprasert shadow removal parameters, or ``"auto"``: :data:`ROOM_SHADOW` for a sequence rendered in
-    the room (where the body casts shadows), none otherwise; its noise scale is ``√2 σ``. ``open_size``: the
-    opening's square (1: none); no dilation.
+    ``thresholds`` (8-bit units) default to ``max(8, 4 √2 σ)``: four standard deviations of the difference of two
+    noisy exposures. ``shadow``: Horprasert shadow removal parameters, or ``"auto"``: :data:`ROOM_SHADOW` for a
+    sequence rendered in the room (where the body casts shadows), none otherwise; its noise scale is ``√2 σ``.
+    ``open_size``: the opening's square (1: none); no dilation.
     """
     sigma = 255.0 * float(seq.meta.get("noise", {}).get("rgb_sigma", 0.01))
-    if thresholds is None:
-        thresholds = max(8.0, 4.0 * np.sqrt(2.0) * sigma)
     if isinstance(shadow, str):
         shadow = ROOM_SHADOW if seq.meta.get("background") == "room" else None
     return [
-        fg.StaticBackground(
+        fg.plate_background(
             np.ascontiguousarray(read_plate(seq.root, view.name)[..., ::-1]),
-            thresholds,
+            sigma,
+            shadow,
             open_size=open_size,
-            dilate_size=1,
-            shadow=shadow,
-            noise_std=max(1.0, np.sqrt(2.0) * sigma),
+            threshold=thresholds,
         )
         for view in seq.views
     ]

@@ -1,9 +1,10 @@
 """Frames → what the filter step sees of one frame (:class:`TrackObservation`).
 
-:class:`FeatureBuilder` runs :class:`jaxmocap.features.FeatureExtractor` (foreground from the sequence's masks, a
-median background, MOG2, the adaptive Gaussian with shadow removal or none; edges; distance transform; depth; the
-colour map, skin probability and triangulated skin blobs when a cue reads them), adds the silhouette samples of the ``coverage`` cue
-(:func:`jaxmocap.likelihood.coverage.silhouette_samples`) and a placeholder for the detection-driven proposal centre.
+:class:`FeatureBuilder` runs :class:`jaxmocap.features.FeatureExtractor` (foreground from the sequence's masks,
+the recorded plates, a median background, MOG2, the adaptive Gaussian with shadow removal or none; edges; distance
+transform; depth; the colour map, skin probability and triangulated skin blobs or wrist bands when a cue reads
+them), adds the silhouette samples of the ``coverage`` cue (:func:`jaxmocap.likelihood.coverage.silhouette_samples`)
+and a placeholder for the detection-driven proposal centre.
 """
 
 from __future__ import annotations
@@ -113,8 +114,7 @@ class FeatureBuilder:
     adaptive single Gaussian per pixel and channel, eq. 4.1–4.2, with shadow removal:
     :class:`jaxmocap.features.foreground.GaussianBackground` with :class:`~jaxmocap.features.foreground.ShadowParams`,
     its mean started from the input's recorded plates when it has them, else from :func:`median_background`, and
-    its σ from the configuration's sensor noise
-    ``noise_std``, 4 grey levels — the shadow test's chromaticity bound is in units of σ; only pixels classified
+    its σ from the configuration's sensor noise ``noise_std``, 4 grey levels — the shadow test's chromaticity bound is in units of σ; only pixels classified
     as background are learned (``selective``: a subject passing over a pixel would inflate its σ, and with it the
     shadow test's bound, until the subject itself passes for a shadow); the shadow test :data:`ADAPTIVE_SHADOW`
     also takes brighter copies of the background (a global illumination change) for background, so that the

@@ -274,10 +274,8 @@ class TrackOptions:
         )
         keys += ("reinit_widen", "keypoint_layout", "calibration_units")
         out = {k: getattr(self, k) for k in keys}
-        for (
-            k,
-            default,
-        ) in _IDENTITY_DEFAULTS.items():  # (absent at their defaults: older runs resume as they were)
+        # (absent at their defaults: older runs resume as they were)
+        for k, default in _IDENTITY_DEFAULTS.items():
             if getattr(self, k) != default:
                 out[k] = getattr(self, k)
         if self.preset is not None:  # (absent otherwise: runs written before presets resume as they were)
@@ -295,9 +293,6 @@ _IDENTITY_DEFAULTS = {
     "dynamics_fraction": None,
     "detection_fraction": None,
 }
-#: The values of ``proposal`` and ``annealing``.
-PROPOSALS = ("auto", "head-hands")
-ANNEALINGS = ("auto", "iros2007")
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -317,25 +312,16 @@ RUN_KEYS = {"out": "path", "quiet": bool}
 
 
 def option_types() -> dict[str, object]:
-    """Type of each :class:`TrackOptions` field in a configuration file: ``int``, ``float``, ``bool``, ``str`` or
-    ``"particles"`` (an integer or a list of integers)."""
+    """Type of each :class:`TrackOptions` field in a configuration file: ``int``, ``float``, ``bool``, ``str`` (the
+    first type of the field's annotation: ``float | None`` is a float), ``"particles"`` (an integer or a list of
+    integers) or ``"cues"``."""
+    scalars = {"bool": bool, "int": int, "float": float}
     out = {}
     for f in dataclasses.fields(TrackOptions):
-        default = f.default
-        if f.name == "particles":
-            out[f.name] = "particles"
-        elif f.name == "layers":
-            out[f.name] = int
-        elif f.name == "cues":
-            out[f.name] = "cues"
-        elif isinstance(default, bool):
-            out[f.name] = bool
-        elif isinstance(default, int):
-            out[f.name] = int
-        elif isinstance(default, float) or f.name.endswith("_fraction"):
-            out[f.name] = float
+        if f.name in ("particles", "cues"):
+            out[f.name] = f.name
         else:
-            out[f.name] = str
+            out[f.name] = scalars.get(str(f.type).split("|")[0].strip(), str)
     return out
 
 

@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmocap.choices import parse_frames
+from jaxmocap.choices import ANNEALINGS, PROPOSALS, parse_frames
 from jaxmocap.errors import MocapInputError
 from jaxmocap.filters.annealing import Schedule
 from jaxmocap.filters.factory import GRADIENT_FILTERS, make_filter, partition_counts
@@ -34,9 +34,7 @@ from jaxmocap.tracking import init as init_mod
 from jaxmocap.tracking import presets
 from jaxmocap.tracking.features import FeatureBuilder, TrackObservation
 from jaxmocap.tracking.options import (
-    ANNEALINGS,
     FILTERS,
-    PROPOSALS,
     SINGLE_LAYER,
     TrackOptions,
     build_model,
@@ -97,15 +95,10 @@ class ObservationLoglik:
         return jnp.clip(jnp.asarray(getattr(layer, "index", layer)), 0, self.num_layers - 1)
 
     def __call__(self, X, tobs, layer):
-        return self.lik.batch(X, tobs.image, self._layer(layer), _partition(layer))
+        return self.lik.batch(X, tobs.image, self._layer(layer), lk.layer_partition(layer))
 
     def batch_value_and_grad(self, X, tobs, layer):
-        return self.lik.batch_value_and_grad(X, tobs.image, self._layer(layer), _partition(layer))
-
-
-def _partition(layer):
-    """The partition of a filter's layer (0 for a bare layer index)."""
-    return getattr(layer, "partition", 0)
+        return self.lik.batch_value_and_grad(X, tobs.image, self._layer(layer), lk.layer_partition(layer))
 
 
 class _Same:
@@ -220,6 +213,10 @@ class TrackSetup:
             )
         self.annealing = fixed if o.filter not in SINGLE_LAYER else None
         self.head_hands = None
+        # the last frame's head-and-hands detection (:meth:`head_hands_pose`): its frame, reference, whether a head
+        # was seen, and the pose
+        self._hh_fd = self._hh_ref = self._hh_pose = None
+        self._hh_seen = False
         if o.proposal == "head-hands" or o.init == "head-hands":
             from jaxmocap.tracking.head_hands import HeadHandsDetector
 
@@ -441,7 +438,7 @@ class TrackSetup:
         if fd is None or self.head_hands is None:
             return None
         ref = None if reference is None else np.asarray(reference, np.float64).tobytes()
-        if getattr(self, "_hh_fd", None) is not fd or self._hh_ref != ref:
+        if self._hh_fd is not fd or self._hh_ref != ref:
             from jaxmocap.tracking.head_hands import head_hands_pose
 
             det = self.head_hands(fd.images, self.model, reference)
@@ -455,7 +452,7 @@ class TrackSetup:
         """With the head-and-hands proposal: no head is seen in the frame (the track counts as lost)."""
         if self.o.proposal != "head-hands" or fd is None:
             return False
-        if getattr(self, "_hh_fd", None) is not fd:
+        if self._hh_fd is not fd:
             self.head_hands_pose(fd, None)
         return not self._hh_seen
 

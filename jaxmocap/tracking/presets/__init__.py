@@ -45,9 +45,7 @@ __all__ = [
 ]
 
 #: The presets by name.
-PRESETS: dict[str, Preset] = {LI_KULIC.name: LI_KULIC}
-PRESETS[LOPEZ_MENDEZ.name] = LOPEZ_MENDEZ
-PRESETS[IROS2007.name] = IROS2007
+PRESETS: dict[str, Preset] = {p.name: p for p in (LI_KULIC, LOPEZ_MENDEZ, IROS2007)}
 
 #: The presets' variants (``--filter`` names that only a preset knows) → the presets that define them.
 VARIANTS: dict[str, tuple[str, ...]] = {}
