@@ -28,7 +28,6 @@ from common import ROOT
 from jaxmocap.features.observation import make_observation
 from jaxmocap.geometry import body, camera
 from jaxmocap.io.sources import FrameData, SequenceSource
-from jaxmocap.io.subject import load_subject
 from jaxmocap.likelihood import compose as L
 from jaxmocap.synth import generate as synth
 from jaxmocap.synth import plates
@@ -211,15 +210,8 @@ class PlateSource(SequenceSource):
     def __init__(self, root):
         super().__init__(root)
         self.subtract = plates.subtractors(self.seq)
-        folders = [self.root / "views" / name / "openpose" for name in self.view_names]
-        missing = [f for f in folders if not f.is_dir()]
-        if missing:
-            raise ValueError(f"{missing[0]}: no simulated detections (synthesize with detections=True)")
-        T = self.num_frames
-        sub = load_subject([str(f) for f in folders], self.rig, range(T), self.fps, total=T)
-        self.keypoints, self.keypoint_layout = sub.keypoints, sub.layout
-        self.has_keypoints = True
-        self.notes = list(sub.notes)
+        if not self.has_keypoints:
+            raise ValueError(f"{self.root}: no simulated detections (synthesize with detections=True)")
         self.description = {**self.description, "foreground": "plates", "keypoints": "simulated BODY_25B"}
 
     def read(self, t: int, masks: bool = True, depth: bool = True) -> FrameData:
@@ -244,8 +236,8 @@ class RecordingSource(PlateSource):
 
 def open_source(seq_dir, oracle: bool = False) -> SequenceSource:
     """The tracker's input for a synthetic sequence: :class:`PlateSource`, or with ``oracle`` the sequence as
-    written (rendered masks, ground truth for initialisation)."""
-    return SequenceSource(seq_dir) if oracle else PlateSource(seq_dir)
+    written (rendered masks, ground truth for initialisation; the detections left out, as before they were read)."""
+    return SequenceSource(seq_dir, detections=False) if oracle else PlateSource(seq_dir)
 
 
 def make_sequences(work: pathlib.Path, frames: str, size: str, log=print, max_clips: int | None = None):

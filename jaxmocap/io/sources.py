@@ -28,6 +28,7 @@ from jaxmocap.errors import MocapInputError
 from jaxmocap.io.calibration import check_units, load_calibration
 
 __all__ = [
+    "DETECTIONS",
     "BadFrame",
     "FrameData",
     "SequenceSource",
@@ -36,6 +37,10 @@ __all__ = [
     "fit_image_sizes",
     "read_plates",
 ]
+
+
+#: the folder of a sequence view's 2D detections (``views/<camera>/openpose/``)
+DETECTIONS = "openpose"
 
 
 class BadFrame(Exception):
@@ -132,9 +137,26 @@ def read_plates(paths: Sequence[pathlib.Path], rig) -> list[np.ndarray]:
 
 
 class SequenceSource:
-    """Frames of a sequence folder (:func:`jaxmocap.io.sequence.load_sequence`)."""
+    """Frames of a sequence folder (:func:`jaxmocap.io.sequence.load_sequence`).
 
-    def __init__(self, root: str | os.PathLike):
+    Detections: when every view has a ``views/<camera>/openpose/`` folder (OpenPose-format JSON of any layout of
+    :mod:`jaxmocap.io.keypoints`, e.g. the simulated BODY_25B detections that ``jaxmocap synth`` writes), they are
+    read as a video's keypoint folders are (:func:`jaxmocap.io.subject.load_subject`: layout, subject selection,
+    the calibration checked against them) and every frame carries its keypoints; ``detections=False`` ignores them.
+
+    ``recording=True`` reads the folder as a real recording gives it: the images, calibration, plates, depth maps
+    and detections, but not the rendered masks (``has_masks`` False: the tracker's own ``--foreground`` segments
+    the images) and not the ground truth (``groundtruth`` None: nothing to initialise from or score against inside
+    the run; evaluate afterwards with ``jaxmocap eval``).
+    """
+
+    def __init__(
+        self,
+        root: str | os.PathLike,
+        detections: bool = True,
+        recording: bool = False,
+        keypoint_layout: str = "auto",
+    ):
         from jaxmocap.io import sequence as seqio
 
         self.seq = seqio.load_sequence(root)
@@ -143,15 +165,30 @@ class SequenceSource:
         self.fps = self.seq.fps
         self.num_frames = self.seq.num_frames
         self.view_names = self.seq.view_names
-        self.has_masks = "mask" in self.seq.channels
+        self.has_masks = "mask" in self.seq.channels and not recording
         self.has_depth = "depth" in self.seq.channels
-        self.has_keypoints = False
         self.body_path = self.seq.body_path
         gt = self.seq.groundtruth
-        self.groundtruth = None if gt is None else gt.joints
+        self.groundtruth = None if (gt is None or recording) else gt.joints
         plates = [self.root / seqio.VIEWS / name / seqio.PLATE for name in self.view_names]
         self.plate_files = plates if all(p.is_file() for p in plates) else None
         self.description = {"sequence": os.fspath(self.root)}
+        if recording:
+            self.description["read as"] = "recording (no masks, no ground truth)"
+        self.notes: list[str] = []
+        self.keypoints, self.keypoint_layout = None, None
+        folders = [self.root / seqio.VIEWS / name / DETECTIONS for name in self.view_names]
+        if detections and all(f.is_dir() and any(f.glob("*.json")) for f in folders):
+            from jaxmocap.io.subject import load_subject
+
+            T = self.num_frames
+            sub = load_subject(
+                [os.fspath(f) for f in folders], self.rig, range(T), self.fps, keypoint_layout, total=T
+            )
+            self.keypoints, self.keypoint_layout = sub.keypoints, sub.layout  # (T, V, 15, 3)
+            self.notes += sub.notes
+            self.description["keypoints"] = f"views/<camera>/{DETECTIONS}/ ({sub.layout})"
+        self.has_keypoints = self.keypoints is not None
 
     def plates(self) -> list[np.ndarray]:
         """The views' empty-scene plates (:func:`read_plates`)."""
@@ -172,7 +209,7 @@ class SequenceSource:
             if "cannot read image" in str(e) or "missing image" in str(e):
                 raise BadFrame(str(e)) from None
             raise
-        return FrameData(images, m, d, None)
+        return FrameData(images, m, d, None if self.keypoints is None else self.keypoints[t])
 
     def close(self) -> None:
         pass

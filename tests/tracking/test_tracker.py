@@ -246,7 +246,7 @@ def test_compiled_once_and_outputs(sequence, tracked):
 
 
 class _Blanked:
-    """A source whose frames ``blank`` show nothing (no foreground, the background alone)."""
+    """A source whose frames ``blank`` show nothing (no foreground, no detection: the background alone)."""
 
     def __init__(self, source, blank):
         self.s, self.blank = source, set(blank)
@@ -258,6 +258,8 @@ class _Blanked:
         fd = self.s.read(t, masks, depth)
         if t in self.blank and fd.masks is not None:
             fd = fd._replace(masks=[np.zeros_like(m) for m in fd.masks])
+        if t in self.blank and fd.keypoints is not None:
+            fd = fd._replace(keypoints=np.zeros_like(fd.keypoints))
         return fd
 
     def close(self):
