@@ -16,6 +16,8 @@ Example::
     import jaxmocap
     res = jaxmocap.track(videos=["cam1.mp4", "cam2.mp4"], calibration="calib.toml",
                          keypoints=["cam1_json", "cam2_json"], particles=300, seed=0)
+    # without keypoints, the built-in detector makes them (detector="auto"; "none" tracks from the images alone)
+    res = jaxmocap.track(videos=["cam1.mp4", "cam2.mp4"], calibration="calib.toml", detector="blazepose")
     res.joints        # (T, 15, 3) metres, jaxmocap.geometry.body.EVAL_JOINTS
     res.states        # (T, D), res.dof_names
     res.diagnostics["quality"], res.diagnostics["lost"]   # (T,)
@@ -87,10 +89,14 @@ def open_source(
     keypoint_layout: str = "auto",
     calibration_units: str = "auto",
     plates: Sequence | None = None,
+    detector: str | None = "none",
+    progress=None,
 ):
     """The frame source of a run: ``videos`` + ``calibration`` (+ ``keypoints``, ``depth``, ``plates``:
     :class:`jaxmocap.io.sources.VideoSource`), or ``input``: a Pose2Sim project folder
-    (:func:`jaxmocap.io.pose2sim.open_project`) or a sequence folder (:class:`jaxmocap.io.sources.SequenceSource`)."""
+    (:func:`jaxmocap.io.pose2sim.open_project`) or a sequence folder (:class:`jaxmocap.io.sources.SequenceSource`).
+    ``detector`` (``auto``, ``none`` or a name of :data:`jaxmocap.io.detect.DETECTORS`) makes the keypoints of
+    videos given without them; ``progress``: its progress lines."""
     from jaxmocap.io import pose2sim, sources
 
     if (input is None) == (videos is None):
@@ -108,13 +114,15 @@ def open_source(
             keypoint_layout=keypoint_layout,
             calibration_units=calibration_units,
             plates=plates,
+            detector=detector,
+            progress=progress,
         )
     if keypoints or depth or calibration or plates:
         raise ValueError(
             "--calibration, --keypoints, --depth and --plates go with --videos (a folder input has its own)"
         )
     if pose2sim.is_project(input):
-        return pose2sim.open_project(input, keypoint_layout, calibration_units)
+        return pose2sim.open_project(input, keypoint_layout, calibration_units, detector, progress)
     return sources.SequenceSource(input)
 
 
@@ -249,6 +257,7 @@ def track(
         opts.keypoint_layout,
         opts.calibration_units,
         plates=values.get("plates"),
+        detector=opts.detector,
     )
     temporary = out is None
     folder = (

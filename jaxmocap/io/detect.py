@@ -42,18 +42,22 @@ keypoint folder: ``--keypoints`` reads it (with ``--keypoint-layout MEDIAPIPE_33
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import importlib.util
 import json
 import math
 import os
 import pathlib
+import sys
+import tempfile
 import time
 from collections.abc import Callable
 
 import cv2
 import numpy as np
 
+from jaxmocap.choices import DETECTORS as DETECTOR_CHOICES
 from jaxmocap.errors import MocapInputError
 
 __all__ = [
@@ -67,8 +71,8 @@ __all__ = [
     "resolve_detector",
 ]
 
-#: Names of the built-in detectors (``--detector NAME``); ``auto`` and ``none`` are the other choices.
-DETECTORS = ("blazepose",)
+#: Names of the built-in detectors (``--detector NAME``; ``auto`` and ``none`` are the other choices).
+DETECTORS = tuple(c for c in DETECTOR_CHOICES if c not in ("auto", "none"))
 #: Keypoint layout (:data:`jaxmocap.io.keypoints.LAYOUTS`) of the detections.
 LAYOUT = "MEDIAPIPE_33"
 #: How to install the detector (for messages).
@@ -173,6 +177,26 @@ def _crop_matrix(centre: np.ndarray, side: float, theta: float, size: int) -> np
     return np.concatenate([a, (centre - a @ np.array([size / 2.0, size / 2.0]))[:, None]], axis=1)
 
 
+@contextlib.contextmanager
+def _native_info_dropped():
+    """Native code's writes to the standard error (file descriptor 2) inside the block, less its ``INFO:`` lines
+    (LiteRT announces its CPU delegate there), written out at its end."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            text = tmp.read().decode("utf-8", "replace")
+            kept = [line for line in text.splitlines() if line and not line.startswith("INFO:")]
+            if kept:
+                print("\n".join(kept), file=sys.stderr)
+
+
 class BlazePose:
     """BlazePose detector + full landmark model on the CPU (module docstring). ``threads``: LiteRT's threads;
     ``max_people``: landmark crops per image; ``min_score``: the detector's score threshold; ``min_presence``: the
@@ -202,7 +226,8 @@ class BlazePose:
         self._nets = {}
         for key, path in self.files.items():
             net = Interpreter(model_path=os.fspath(path), num_threads=int(threads))
-            net.allocate_tensors()
+            with _native_info_dropped():
+                net.allocate_tensors()
             self._nets[key] = net
         self.anchors = ssd_anchors()
 
