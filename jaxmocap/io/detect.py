@@ -35,7 +35,7 @@ writes it), mapped to the evaluation joints by :func:`jaxmocap.io.keypoints.eval
 (``<stem>_<frame:06d>_keypoints.json``; atomically, so a run stopped half-way resumes from the frames missing),
 into ``<root>/<stem>-<key>/``, ``key`` a hash of the video's absolute path, size and modification time, the
 detector's name and settings and the model files' sizes: a second run over the same video reads them instead of
-detecting again. ``root``: :func:`cache_root` (``$JAXMOCAP_DETECTIONS_DIR``, else
+detecting again (a new :data:`CACHE_VERSION` of this module detects anew). ``root``: :func:`cache_root` (``$JAXMOCAP_DETECTIONS_DIR``, else
 ``$XDG_CACHE_HOME/jaxmocap/detections``, i.e. ``~/.cache/jaxmocap/detections``). The folder is an ordinary
 keypoint folder: ``--keypoints`` reads it (with ``--keypoint-layout MEDIAPIPE_33``).
 """
@@ -83,6 +83,8 @@ _MODELS = {
     "landmarks": ("modules", "pose_landmark", "pose_landmark_full.tflite"),
 }
 _DET_SIZE, _LMK_SIZE, _HEAT_SIZE = 224, 256, 64
+#: Version of the detections' computation, part of the cache key: a change to what they hold gives new folders.
+CACHE_VERSION = 1
 #: File of a cache folder written once every frame is there (JSON: detector, frames, time per frame).
 DONE = "detector.info"
 _NUM_LANDMARKS = 33  # of the model's 39 (the last 6 are auxiliary points for the next region of interest)
@@ -350,6 +352,7 @@ def cache_folder(video: pathlib.Path, detector, root: pathlib.Path) -> pathlib.P
     """The cache folder of ``video``'s detections by ``detector`` under ``root`` (module docstring)."""
     st = video.stat()
     ident = {
+        "format": CACHE_VERSION,
         "video": os.fspath(video.resolve()),
         "size": st.st_size,
         "mtime_ns": st.st_mtime_ns,

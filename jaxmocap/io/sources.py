@@ -382,8 +382,8 @@ class VideoSource:
         folders = []
         for v in self.videos:
             folder, count = detect.detect_video(v, model, progress=progress)
-            if count == 0:
-                self.notes.append(f"{v.name}: {name} detections read from {folder}")
+            how = "read from" if count == 0 else f"of {count} frames written to"
+            self.notes.append(f"{v.name}: {name} detections {how} {folder}")
             folders.append(folder)
         self.detector = name
         return folders

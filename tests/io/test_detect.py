@@ -232,6 +232,7 @@ def test_video_source_detects_and_caches(tmp_path, monkeypatch):
         errs = [_errors(src.keypoints[t, v], _body25b(c, t)[0]) for t in range(4) for v, c in enumerate(cams)]
         assert np.median(np.concatenate(errs)) <= 6.0
         assert len(lines) == 4 and "detecting people in cam03.avi" in lines[0]
+        assert any("detections of 4 frames written to" in n for n in src.notes)
     finally:
         src.close()
     lines.clear()
