@@ -91,12 +91,13 @@ def open_source(
     plates: Sequence | None = None,
     detector: str | None = "none",
     progress=None,
+    frames: str | None = None,
 ):
     """The frame source of a run: ``videos`` + ``calibration`` (+ ``keypoints``, ``depth``, ``plates``:
     :class:`jaxmocap.io.sources.VideoSource`), or ``input``: a Pose2Sim project folder
     (:func:`jaxmocap.io.pose2sim.open_project`) or a sequence folder (:class:`jaxmocap.io.sources.SequenceSource`).
     ``detector`` (``auto``, ``none`` or a name of :data:`jaxmocap.io.detect.DETECTORS`) makes the keypoints of
-    videos given without them; ``progress``: its progress lines."""
+    videos given without them, in the frames ``"A:B"`` (default all); ``progress``: its progress lines."""
     from jaxmocap.io import pose2sim, sources
 
     if (input is None) == (videos is None):
@@ -116,13 +117,14 @@ def open_source(
             plates=plates,
             detector=detector,
             progress=progress,
+            frames=frames,
         )
     if keypoints or depth or calibration or plates:
         raise ValueError(
             "--calibration, --keypoints, --depth and --plates go with --videos (a folder input has its own)"
         )
     if pose2sim.is_project(input):
-        return pose2sim.open_project(input, keypoint_layout, calibration_units, detector, progress)
+        return pose2sim.open_project(input, keypoint_layout, calibration_units, detector, progress, frames)
     return sources.SequenceSource(input)
 
 
@@ -259,6 +261,7 @@ def track(
         opts.calibration_units,
         plates=values.get("plates"),
         detector=opts.detector,
+        frames=opts.frames,
     )
     temporary = out is None
     folder = (

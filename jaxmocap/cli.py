@@ -244,6 +244,7 @@ def _open_source(values: dict, options):
         plates=values.get("plates"),
         detector=options.detector,
         progress=None if values.get("quiet") else lambda line: print(f"jaxmocap: {line}", file=sys.stderr),
+        frames=options.frames,
     )
 
 

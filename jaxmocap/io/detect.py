@@ -31,13 +31,14 @@ the detector (its sparse weights use the ``DENSIFY`` operator).
 The output is in the ``MEDIAPIPE_33`` layout of :mod:`jaxmocap.io.keypoints` (as Pose2Sim's ``BLAZEPOSE``
 writes it), mapped to the evaluation joints by :func:`jaxmocap.io.keypoints.eval_keypoints`.
 
-**Cache** (:func:`detect_video`). A video's detections are written as OpenPose-format JSON, one file per frame
-(``<stem>_<frame:06d>_keypoints.json``; atomically, so a run stopped half-way resumes from the frames missing),
-into ``<root>/<stem>-<key>/``, ``key`` a hash of the video's absolute path, size and modification time, the
-detector's name and settings and the model files' sizes: a second run over the same video reads them instead of
-detecting again (a new :data:`CACHE_VERSION` of this module detects anew). ``root``: :func:`cache_root` (``$JAXMOCAP_DETECTIONS_DIR``, else
-``$XDG_CACHE_HOME/jaxmocap/detections``, i.e. ``~/.cache/jaxmocap/detections``). The folder is an ordinary
-keypoint folder: ``--keypoints`` reads it (with ``--keypoint-layout MEDIAPIPE_33``).
+**Cache** (:func:`detect_video`). A video's detections (of the frames a run tracks) are written as
+OpenPose-format JSON, one file per frame (``<stem>_<frame:06d>_keypoints.json``; atomically, so a run stopped
+half-way resumes from the frames missing), into ``<root>/<stem>-<key>/``, ``key`` a hash of the video's absolute
+path, size and modification time, the detector's name and settings, the model files' sizes and
+:data:`CACHE_VERSION`: a second run over the same video reads them instead of detecting again. ``root``:
+:func:`cache_root` (``$JAXMOCAP_DETECTIONS_DIR``, else ``$XDG_CACHE_HOME/jaxmocap/detections``, i.e.
+``~/.cache/jaxmocap/detections``). The folder is an ordinary keypoint folder: ``--keypoints`` reads it (with
+``--keypoint-layout MEDIAPIPE_33``).
 """
 
 from __future__ import annotations
@@ -386,10 +387,13 @@ def detect_video(
     detector,
     root: str | os.PathLike | None = None,
     progress: Callable[[str], None] | None = None,
+    frames: tuple[int, int] | None = None,
 ) -> tuple[pathlib.Path, int]:
-    """Detect the persons in every frame of ``video`` with ``detector`` (``detect(bgr) -> (P, K, 3)``) into its
-    cache folder (module docstring) unless they are there already; returns ``(folder, frames detected now)``.
-    ``progress``: called with one line before and after detecting."""
+    """Detect the persons in the frames ``a ≤ t < b`` of ``video`` (``frames = (a, b)``; default every frame) with
+    ``detector`` (``detect(bgr) -> (P, K, 3)``) into its cache folder (module docstring), the frames whose file is
+    there already left as they are; returns ``(folder, frames detected now)``. The folder's :data:`DONE` file is
+    written once every frame of the video has its file. ``progress``: called with one line before and after
+    detecting (none when nothing is left to detect)."""
     from jaxmocap.io.export import atomic_write_text
 
     video = pathlib.Path(video)
@@ -408,11 +412,16 @@ def detect_video(
     if not cap.isOpened():
         raise MocapInputError(video, "cannot open the video (unknown format or corrupt)")
     count = int(round(cap.get(cv2.CAP_PROP_FRAME_COUNT)))
-    if progress is not None:
-        progress(f"detecting people in {video.name} ({count} frames, {detector.name}) into {folder}")
-    start, detected, t = time.perf_counter(), 0, 0
+    a, b = (0, count) if frames is None else (max(int(frames[0]), 0), min(int(frames[1]), count))
+    todo = [t for t in range(a, b) if not frame_file(folder, video.stem, t).is_file()]
+    start, detected = time.perf_counter(), 0
     try:
-        while True:
+        if todo and progress is not None:
+            progress(f"detecting people in {video.name} ({len(todo)} frames, {detector.name}) into {folder}")
+        if todo and todo[0] > 0:
+            cap.set(cv2.CAP_PROP_POS_FRAMES, todo[0])
+        t = todo[0] if todo else b
+        while t < b:
             ok, frame = cap.read()
             if not ok or frame is None:
                 break
@@ -424,10 +433,10 @@ def detect_video(
     finally:
         cap.release()
     seconds = time.perf_counter() - start
-    meta = {"detector": detector.name, "layout": LAYOUT, "video": os.fspath(video.resolve()), "frames": t}
-    meta["settings"] = getattr(detector, "settings", {})
-    meta["seconds_per_frame"] = seconds / max(detected, 1)
-    atomic_write_text(done, json.dumps(meta, indent=1))
-    if progress is not None:
+    if all(frame_file(folder, video.stem, t).is_file() for t in range(count)):
+        meta = {"detector": detector.name, "layout": LAYOUT, "video": os.fspath(video.resolve())}
+        meta |= {"frames": count, "settings": getattr(detector, "settings", {})}
+        atomic_write_text(done, json.dumps(meta, indent=1))
+    if detected and progress is not None:
         progress(f"{video.name}: {detected} frames detected in {seconds:.1f} s")
     return folder, detected

@@ -348,10 +348,11 @@ def open_project(
     calibration_units: str = "auto",
     detector: str | None = "none",
     progress=None,
+    frames: str | None = None,
 ) -> VideoSource:
     """The frame source of a Pose2Sim project folder (module docstring); its ``project`` attribute holds
-    :func:`project_settings` and its ``notes`` what was assumed. ``detector`` / ``progress``: for a project without
-    keypoint folders (:class:`VideoSource`)."""
+    :func:`project_settings` and its ``notes`` what was assumed. ``detector`` / ``progress`` / ``frames`` (default
+    ``Config.toml``'s): for a project without keypoint folders (:class:`VideoSource`)."""
     folder = pathlib.Path(folder)
     if not is_project(folder):
         raise MocapInputError(folder, "not a Pose2Sim project (Config.toml and videos/)")
@@ -371,6 +372,7 @@ def open_project(
         fps=settings["fps"],
         detector=detector,
         progress=progress,
+        frames=frames if frames is not None else settings["frames"],
     )
     if keypoints is None and src.detector is None:
         src.notes.append(f"{folder / 'pose'}: no keypoint folders: tracking from the images alone")

@@ -165,8 +165,14 @@ def test_cache_written_once_and_resumed(tmp_path):
     frames = [_image("cam03", t) for t in range(3)]
     video = _video(tmp_path / "cam03.avi", frames)
     det = _Counting()
-    folder, n = detect.detect_video(video, det, tmp_path / "cache")
-    assert n == 3 and det.calls == 3 and (folder / detect.DONE).is_file()
+    # a run over frames 1:3 detects those; the whole video's run then only frame 0, and marks the folder complete
+    folder, n = detect.detect_video(video, det, tmp_path / "cache", frames=(1, 3))
+    assert n == 2 and sorted(frame_files(folder)) == [1, 2] and not (folder / detect.DONE).is_file()
+    assert read_people(frame_files(folder)[2])[0][0, 0] == pytest.approx(
+        frames[2].mean(), abs=2.0
+    )  # frame 2's
+    again, n = detect.detect_video(video, det, tmp_path / "cache")
+    assert again == folder and n == 1 and det.calls == 3 and (folder / detect.DONE).is_file()
     files = frame_files(folder)
     assert sorted(files) == [0, 1, 2]
     people = read_people(files[1])
@@ -243,3 +249,10 @@ def test_video_source_detects_and_caches(tmp_path, monkeypatch):
     none = VideoSource(vids, tmp_path / "calib.toml", detector="none")
     none.close()
     assert not none.has_keypoints
+    # a run's frames only: the others have no detections
+    monkeypatch.setenv("JAXMOCAP_DETECTIONS_DIR", os.fspath(tmp_path / "cache2"))
+    part = VideoSource(vids, tmp_path / "calib.toml", detector="blazepose", frames="1:3")
+    part.close()
+    assert not np.any(part.keypoints[[0, 3], ..., 2] > 0)
+    np.testing.assert_array_equal(part.keypoints[1:3], src.keypoints[1:3])
+    assert [sorted(frame_files(f)) for f in part.description["keypoints"]] == [[1, 2], [1, 2]]
