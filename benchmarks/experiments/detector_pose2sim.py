@@ -107,7 +107,7 @@ def detection(out: pathlib.Path, frames: int) -> dict:
     size, _ = fit_image_sizes(rig, sizes, videos, CALIB)
     rig = dataclasses.replace(rig, image_size=size)
     ts = range(count)
-    ours = load_subject(folders, rig, ts, 60.0, detect.LAYOUT).keypoints.astype(np.float64)
+    ours = load_subject(folders, rig, ts, 60.0, detect.LAYOUT, mirrored=True).keypoints.astype(np.float64)
     theirs = load_subject([DATA / SHIPPED / f"{c}_json" for c in CAMS], rig, ts, 60.0, "BODY_25B").keypoints
     swapped = [[sides_swapped(folder, t, theirs[t, v]) for v, folder in enumerate(folders)] for t in ts]
     both = (ours[..., 2] > 0.3) & (theirs[..., 2] > 0.3)  # (T, V, 15)
@@ -195,8 +195,9 @@ def report(det: dict, trk: dict | None, argv) -> str:
         "",
         "Subject found: frames where the subject chosen across the views has ≥ 10 joints of confidence > 0.3 in "
         "the camera. Left/right swapped: frames where the detection on OpenPose's subject has its left shoulder, "
-        "hip, knee and ankle on OpenPose's right ones (the subject seen from behind read as from the front); the "
-        "subject selection leaves such a view out, as it does not triangulate with the others.",
+        "hip, knee and ankle on OpenPose's right ones (the subject seen from behind read as from the front); such a "
+        "view does not triangulate with the others, and the subject selection takes its mirror "
+        "(`select_subject(mirrored=True)`, the detector's setting).",
         "",
         "| camera | ms / frame (median) | subject found | OpenPose's subject found | left/right swapped |",
         "|---|---|---|---|---|",
@@ -265,8 +266,8 @@ def report(det: dict, trk: dict | None, argv) -> str:
             "- The reference is Pose2Sim's triangulation of the OpenPose detections, so a run on those detections "
             "is pulled towards it by its keypoint cue; BlazePose places the hips, the thorax (mid-shoulders, not "
             "the upper neck) and the head (ears) by its own labels, which shows most at those joints.",
-            "- Views where BlazePose swaps left and right (above) are left out by the subject selection: fewer "
-            "views measure the subject in those frames.",
+            "- BlazePose reads a back as a front in some frames of one camera (left/right swapped, above); the "
+            "subject selection mirrors those views back, but a swap of only some joints is left out.",
             f"- The timing was taken on a shared 2-core machine (1-minute load average {det['load']:.1f} when it "
             "started): a quiet core gives smaller numbers.",
         ]

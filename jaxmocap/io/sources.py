@@ -322,6 +322,7 @@ class VideoSource:
                 keypoint_layout,
                 layout_hint,
                 total=self.num_frames,
+                mirrored=self.detector is not None,  # the detector may read a back as a front
             )
             self.keypoints = np.zeros(
                 (self.num_frames, *sub.keypoints.shape[1:]), np.float32
