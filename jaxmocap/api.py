@@ -209,8 +209,9 @@ def track(
     Input: ``videos`` (one per camera, synchronised) with ``calibration`` and optional ``keypoints`` / ``depth``
     folders and ``plates`` (empty-scene images; one of each per camera), or ``input``: a Pose2Sim project folder or a sequence folder. ``options``: the fields
     of :class:`jaxmocap.tracking.options.TrackOptions` (``filter``, ``particles``, ``seed``, ``cues``, ``frames``,
-    ``keypoint_layout``, ``calibration_units``, ``preset``, ``detector`` — the 2D pose detector of videos given without ``keypoints``:
-    ``"auto"``, ``"none"`` or ``"blazepose"``, :mod:`jaxmocap.io.detect` — …; a preset's values lie under the others). ``config``: a configuration file
+    ``keypoint_layout``, ``calibration_units``, ``preset``, ``detector`` …; a preset's values lie under the others;
+    ``detector``: the 2D pose detector of videos given without ``keypoints``, ``"auto"``, ``"none"`` or
+    ``"blazepose"``, :mod:`jaxmocap.io.detect`). ``config``: a configuration file
     (:func:`jaxmocap.tracking.options.load_config`) whose values the arguments given here override. ``out``: keep
     the outputs there (else a temporary folder, removed); ``quiet``: no progress line; ``cache``: the persistent
     compilation cache. Bad input raises :class:`jaxmocap.errors.MocapInputError` (or ``ValueError`` for a bad

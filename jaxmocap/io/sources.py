@@ -324,9 +324,11 @@ class VideoSource:
                 total=self.num_frames,
                 mirrored=self.detector is not None,  # the detector may read a back as a front
             )
-            self.keypoints = np.zeros(
-                (self.num_frames, *sub.keypoints.shape[1:]), np.float32
-            )  # (T, V, 15, 3)
+            shape = (
+                self.num_frames,
+                *sub.keypoints.shape[1:],
+            )  # (T, V, 15, 3); zeros outside the frames read
+            self.keypoints = np.zeros(shape, np.float32)
             self.keypoints[a:b], self.keypoint_layout = sub.keypoints, sub.layout
             if self.detector is not None and not np.any(self.keypoints[..., 2] > 0):
                 self.notes.append(
