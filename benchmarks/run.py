@@ -368,6 +368,13 @@ SCRIPTS: dict[str, Script] = {
         writes=("pose2sim_loo.md",),
         env="JAX_PLATFORMS=cpu",
     ),
+    "detector_pose2sim": Script(
+        "The built-in 2D pose detector on the Pose2Sim recording: time, distance to OpenPose, tracking with it",
+        "experiments/detector_pose2sim.py",
+        "--out /tmp/det --track --report",
+        writes=("detector_pose2sim.md",),
+        env="JAX_PLATFORMS=cpu",
+    ),
 }
 
 #: the benchmarks reported in RESULTS.md, run in this process by ``run.py``

@@ -16,6 +16,8 @@ Example::
     import jaxmocap
     res = jaxmocap.track(videos=["cam1.mp4", "cam2.mp4"], calibration="calib.toml",
                          keypoints=["cam1_json", "cam2_json"], particles=300, seed=0)
+    # without keypoints, the built-in detector makes them (detector="auto"; "none" tracks from the images alone)
+    res = jaxmocap.track(videos=["cam1.mp4", "cam2.mp4"], calibration="calib.toml", detector="blazepose")
     res.joints        # (T, 15, 3) metres, jaxmocap.geometry.body.EVAL_JOINTS
     res.states        # (T, D), res.dof_names
     res.diagnostics["quality"], res.diagnostics["lost"]   # (T,)
@@ -87,10 +89,15 @@ def open_source(
     keypoint_layout: str = "auto",
     calibration_units: str = "auto",
     plates: Sequence | None = None,
+    detector: str | None = "none",
+    progress=None,
+    frames: str | None = None,
 ):
     """The frame source of a run: ``videos`` + ``calibration`` (+ ``keypoints``, ``depth``, ``plates``:
     :class:`jaxmocap.io.sources.VideoSource`), or ``input``: a Pose2Sim project folder
-    (:func:`jaxmocap.io.pose2sim.open_project`) or a sequence folder (:class:`jaxmocap.io.sources.SequenceSource`)."""
+    (:func:`jaxmocap.io.pose2sim.open_project`) or a sequence folder (:class:`jaxmocap.io.sources.SequenceSource`).
+    ``detector`` (``auto``, ``none`` or a name of :data:`jaxmocap.io.detect.DETECTORS`) makes the keypoints of
+    videos given without them, in the frames ``"A:B"`` (default all); ``progress``: its progress lines."""
     from jaxmocap.io import pose2sim, sources
 
     if (input is None) == (videos is None):
@@ -108,13 +115,16 @@ def open_source(
             keypoint_layout=keypoint_layout,
             calibration_units=calibration_units,
             plates=plates,
+            detector=detector,
+            progress=progress,
+            frames=frames,
         )
     if keypoints or depth or calibration or plates:
         raise ValueError(
             "--calibration, --keypoints, --depth and --plates go with --videos (a folder input has its own)"
         )
     if pose2sim.is_project(input):
-        return pose2sim.open_project(input, keypoint_layout, calibration_units)
+        return pose2sim.open_project(input, keypoint_layout, calibration_units, detector, progress, frames)
     return sources.SequenceSource(input)
 
 
@@ -199,7 +209,9 @@ def track(
     Input: ``videos`` (one per camera, synchronised) with ``calibration`` and optional ``keypoints`` / ``depth``
     folders and ``plates`` (empty-scene images; one of each per camera), or ``input``: a Pose2Sim project folder or a sequence folder. ``options``: the fields
     of :class:`jaxmocap.tracking.options.TrackOptions` (``filter``, ``particles``, ``seed``, ``cues``, ``frames``,
-    ``keypoint_layout``, ``calibration_units``, ``preset`` …; a preset's values lie under the others). ``config``: a configuration file
+    ``keypoint_layout``, ``calibration_units``, ``preset``, ``detector`` …; a preset's values lie under the others;
+    ``detector``: the 2D pose detector of videos given without ``keypoints``, ``"auto"``, ``"none"`` or
+    ``"blazepose"``, :mod:`jaxmocap.io.detect`). ``config``: a configuration file
     (:func:`jaxmocap.tracking.options.load_config`) whose values the arguments given here override. ``out``: keep
     the outputs there (else a temporary folder, removed); ``quiet``: no progress line; ``cache``: the persistent
     compilation cache. Bad input raises :class:`jaxmocap.errors.MocapInputError` (or ``ValueError`` for a bad
@@ -249,6 +261,8 @@ def track(
         opts.keypoint_layout,
         opts.calibration_units,
         plates=values.get("plates"),
+        detector=opts.detector,
+        frames=opts.frames,
     )
     temporary = out is None
     folder = (

@@ -30,6 +30,8 @@ FOREGROUNDS = ("auto", "mask", "plate", "median", "mog2", "adaptive", "none")
 PROPOSALS = ("auto", "head-hands")
 #: β rules of the annealed filters (``--annealing``).
 ANNEALINGS = ("auto", "iros2007")
+#: 2D pose detectors of videos given without keypoints (``--detector``; :mod:`jaxmocap.io.detect`).
+DETECTORS = ("auto", "none", "blazepose")
 #: Layouts of 2D keypoint files (:mod:`jaxmocap.io.keypoints`).
 KEYPOINT_LAYOUTS = ("BODY_25", "BODY_25B", "HALPE_26", "COCO_17", "COCO_133", "MEDIAPIPE_33")
 

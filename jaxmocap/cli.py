@@ -242,6 +242,9 @@ def _open_source(values: dict, options):
         options.keypoint_layout,
         options.calibration_units,
         plates=values.get("plates"),
+        detector=options.detector,
+        progress=None if values.get("quiet") else lambda line: print(f"jaxmocap: {line}", file=sys.stderr),
+        frames=options.frames,
     )
 
 
@@ -459,6 +462,12 @@ def _add_tracking_commands(sub) -> None:
         "--keypoint-layout",
         choices=("auto", *_LAYOUTS),
         help="layout of the keypoint files (default auto: from the number of keypoints and where they lie)",
+    )
+    tr.add_argument(
+        "--detector",
+        choices=choices.DETECTORS,
+        help="2D pose detector for videos given without --keypoints (default auto: blazepose when installed, "
+        "else none; its detections are cached per video in ~/.cache/jaxmocap/detections)",
     )
     tr.add_argument(
         "--calibration-units",

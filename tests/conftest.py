@@ -39,6 +39,11 @@ def pytest_configure(config):
     flags = os.environ.get("XLA_FLAGS", "")
     if "xla_backend_optimization_level" not in flags:
         os.environ["XLA_FLAGS"] = f"{flags} --xla_backend_optimization_level=0".strip()
+    if not hasattr(config, "workerinput") and "JAXMOCAP_DETECTIONS_DIR" not in os.environ:
+        # the 2D detector's cache (jaxmocap.io.detect) in a folder of the session, removed at its end
+        folder = tempfile.mkdtemp(prefix="jaxmocap-tests-detections-")
+        config.stash[_DETECTIONS] = folder
+        os.environ["JAXMOCAP_DETECTIONS_DIR"] = folder
     if not hasattr(config, "workerinput") and "JAX_COMPILATION_CACHE_DIR" not in os.environ:
         folder = tempfile.mkdtemp(prefix="jaxmocap-tests-xla-")
         config.stash[_CACHE] = folder
@@ -47,13 +52,15 @@ def pytest_configure(config):
 
 
 def pytest_unconfigure(config):
-    folder = config.stash.get(_CACHE, None)
-    if folder is not None:
-        shutil.rmtree(folder, ignore_errors=True)
-        os.environ.pop("JAX_COMPILATION_CACHE_DIR", None)
+    for key, name in ((_CACHE, "JAX_COMPILATION_CACHE_DIR"), (_DETECTIONS, "JAXMOCAP_DETECTIONS_DIR")):
+        folder = config.stash.get(key, None)
+        if folder is not None:
+            shutil.rmtree(folder, ignore_errors=True)
+            os.environ.pop(name, None)
 
 
 _CACHE = pytest.StashKey[str]()
+_DETECTIONS = pytest.StashKey[str]()
 
 
 def pytest_collection_modifyitems(config, items):

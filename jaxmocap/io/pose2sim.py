@@ -343,10 +343,16 @@ def _project_keypoints(folder: pathlib.Path, videos: list[pathlib.Path]) -> list
 
 
 def open_project(
-    folder: str | os.PathLike, keypoint_layout: str = "auto", calibration_units: str = "auto"
+    folder: str | os.PathLike,
+    keypoint_layout: str = "auto",
+    calibration_units: str = "auto",
+    detector: str | None = "none",
+    progress=None,
+    frames: str | None = None,
 ) -> VideoSource:
     """The frame source of a Pose2Sim project folder (module docstring); its ``project`` attribute holds
-    :func:`project_settings` and its ``notes`` what was assumed."""
+    :func:`project_settings` and its ``notes`` what was assumed. ``detector`` / ``progress`` / ``frames`` (default
+    ``Config.toml``'s): for a project without keypoint folders (:class:`VideoSource`)."""
     folder = pathlib.Path(folder)
     if not is_project(folder):
         raise MocapInputError(folder, "not a Pose2Sim project (Config.toml and videos/)")
@@ -364,8 +370,11 @@ def open_project(
         calibration_units=calibration_units,
         layout_hint=settings["layout"],
         fps=settings["fps"],
+        detector=detector,
+        progress=progress,
+        frames=frames if frames is not None else settings["frames"],
     )
-    if keypoints is None:
+    if keypoints is None and src.detector is None:
         src.notes.append(f"{folder / 'pose'}: no keypoint folders: tracking from the images alone")
     if settings["multi_person"]:
         src.notes.append("Config.toml says multi_person = true: one person, the subject, is tracked")

@@ -267,6 +267,10 @@ class VideoSource:
     0.1–30 m). ``notes``: what was assumed or converted, for the user. ``keypoint_layout``: ``"auto"`` or a layout
     name; ``layout_hint``: the layout the recording's configuration names (used when the files leave it open).
     ``plates``: one image of the empty scene per camera (for ``--foreground plate``), checked when read.
+    ``detector``: without ``keypoints``, the 2D pose detector that makes them (:mod:`jaxmocap.io.detect`:
+    ``auto``, ``none`` or a detector's name; its detections cached per video) for the frames ``"A:B"`` (the
+    run's; default all, the others without detections); ``progress``: called with a line before and after each
+    video's detection.
     """
 
     def __init__(
@@ -280,6 +284,9 @@ class VideoSource:
         layout_hint: str | None = None,
         fps: float | None = None,
         plates: Sequence[str | os.PathLike] | None = None,
+        detector: str | None = "none",
+        progress=None,
+        frames: str | None = None,
     ):
         self.videos = [pathlib.Path(v) for v in videos]
         if not self.videos:
@@ -333,6 +340,9 @@ class VideoSource:
         self.scene_images = None
         self.keypoints = None
         self.keypoint_layout = None
+        self.detector = None
+        if not keypoints and detector not in (None, "none"):
+            keypoints, keypoint_layout = self._detect(detector, progress, frames), "MEDIAPIPE_33"
         if keypoints:
             from jaxmocap.io.subject import load_subject
 
@@ -340,17 +350,30 @@ class VideoSource:
                 raise MocapInputError(
                     keypoints[0], f"{len(keypoints)} keypoint folders for {len(self.videos)} videos"
                 )
+            a, b = self.detected if self.detector is not None else (0, self.num_frames)
             sub = load_subject(
                 [os.fspath(k) for k in keypoints],
                 self.rig,
-                range(self.num_frames),
+                range(a, b),
                 self.fps,
                 keypoint_layout,
                 layout_hint,
                 total=self.num_frames,
+                mirrored=self.detector is not None,  # the detector may read a back as a front
             )
-            self.notes += sub.notes
-            self.keypoints, self.keypoint_layout = sub.keypoints, sub.layout  # (T, V, 15, 3)
+            shape = (
+                self.num_frames,
+                *sub.keypoints.shape[1:],
+            )  # (T, V, 15, 3); zeros outside the frames read
+            self.keypoints = np.zeros(shape, np.float32)
+            self.keypoints[a:b], self.keypoint_layout = sub.keypoints, sub.layout
+            if self.detector is not None and not np.any(self.keypoints[..., 2] > 0):
+                self.notes.append(
+                    f"the {self.detector} detector found no subject: tracking from the images alone"
+                )
+                self.keypoints, self.keypoint_layout, self.detector = None, None, None
+            else:
+                self.notes += sub.notes
         self.has_keypoints = self.keypoints is not None
         #: no detections checked the calibration against the videos: the tracker's setup checks the camera order
         #: with the silhouettes (:meth:`jaxmocap.tracking.setup.TrackSetup._check_camera_order`)
@@ -385,8 +408,34 @@ class VideoSource:
             "keypoint_layout": self.keypoint_layout,
             "depth": [os.fspath(d) for d in depth or []],
         }
+        if self.detector is not None:
+            self.description["detector"] = self.detector
         if plates:
             self.description["plates"] = [os.fspath(p) for p in plates]
+
+    def _detect(self, detector: str, progress, frames: str | None) -> list[pathlib.Path] | None:
+        """The keypoint folders of the videos made by ``detector`` (``auto`` or a name of
+        :data:`jaxmocap.io.detect.DETECTORS`; :func:`jaxmocap.io.detect.detect_video`: read from the cache when
+        there) for the frames ``"A:B"`` (default all; ``detected``: the range), or None with a note when ``auto``
+        finds no detector installed."""
+        from jaxmocap.choices import parse_frames
+        from jaxmocap.io import detect
+
+        name, note = detect.resolve_detector(detector)
+        if note is not None:
+            self.notes.append(note)
+        if name is None:
+            return None
+        self.detected = parse_frames(frames, self.num_frames)
+        model = detect.BlazePose()
+        folders = []
+        for v in self.videos:
+            folder, count = detect.detect_video(v, model, progress=progress, frames=self.detected)
+            how = "read from" if count == 0 else f"of {count} frames written to"
+            self.notes.append(f"{v.name}: {name} detections {how} {folder}")
+            folders.append(folder)
+        self.detector = name
+        return folders
 
     def plates(self) -> list[np.ndarray]:
         """The cameras' empty-scene plates (:func:`read_plates`)."""

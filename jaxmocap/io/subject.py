@@ -19,7 +19,10 @@ taken from another detection of that view lying on the subject's triangulated jo
 person in two). In a frame where the subject forms no multi-view person
 (seen by one camera), each view takes the detection nearest (within ``τ_v``) to the projection of the subject's
 joints at the nearest frame of its track (at most ``max_gap`` frames away). With one camera the subject is the
-largest detection (bounding-box diagonal of its confident joints) of each frame.
+largest detection (bounding-box diagonal of its confident joints) of each frame. With ``mirrored`` (detections of
+the built-in detector, :mod:`jaxmocap.io.detect`, which may read a person seen from behind as facing the camera),
+a view the subject leaves out takes a detection whose left-right mirror lies within ``τ_v`` of the subject's
+projection, mirrored.
 
 **Calibration checks** (:func:`check_rig`). Over frames where two or more views detect someone: the median over
 frames of the best 2-view residual ``/ τ`` of every pair of cameras. When some pair disagrees (> 1), every
@@ -234,12 +237,37 @@ def _link(persons: list[list[Person]], fps: float) -> list[dict[int, Person]]:
     return tracks
 
 
+#: Index of each evaluation joint's left-right mirror (``left_*`` ↔ ``right_*``; root, thorax and head stay).
+MIRROR = [
+    EVAL_JOINTS.index(j.replace("left_", "right_") if j.startswith("left_") else j.replace("right_", "left_"))
+    for j in EVAL_JOINTS
+]
+
+
+def _best_fit(geo: ViewGeometry, v: int, X: np.ndarray, dets: np.ndarray, skip, mirrored: bool):
+    """The detection of view ``v`` (``(P, 15, 3)``, indices in ``skip`` left out), or with ``mirrored`` its
+    left-right mirror (:data:`MIRROR`), whose residual to the projection of ``X`` is smallest and ``≤ τ_v``; None
+    when none is."""
+    best = None
+    for p in range(len(dets)):
+        if p in skip:
+            continue
+        for kp in (dets[p], dets[p][MIRROR]) if mirrored else (dets[p],):
+            r = geo.residual(v, X, geo.normalise(v, kp)) / geo.tau[v]
+            if r <= 1.0 and (best is None or r < best[0]):
+                best = (r, kp)
+    return None if best is None else best[1]
+
+
 def select_subject(
-    rig, dets: list[list[np.ndarray]], fps: float = 30.0, max_gap: int = 10
+    rig, dets: list[list[np.ndarray]], fps: float = 30.0, max_gap: int = 10, mirrored: bool = False
 ) -> tuple[np.ndarray, dict]:
     """The subject's keypoints ``(T, V, 15, 3)`` (zeros where a view has none) from ``dets[t][v]`` ``(P, 15, 3)``
     (module docstring), and a report: ``persons`` (multi-view persons per frame), ``subject_frames`` (frames
-    where the subject is a multi-view person) and ``views_per_frame``."""
+    where the subject is a multi-view person) and ``views_per_frame``. ``mirrored``: a view that the multi-view
+    subject of a frame leaves out takes a detection whose left-right mirror lies on the subject's projection (a
+    detector that read a person seen from behind as facing it), mirrored; and the mirrors count in frames where the
+    subject is seen by one view."""
     T, V = len(dets), rig.num_views
     out = np.zeros((T, V, len(EVAL_JOINTS), 3))
     if V == 1:
@@ -262,18 +290,19 @@ def select_subject(
             taken = {(v, p) for person in persons[t] for v, p in person.views.items()}
             for v, p in subject[t].views.items():
                 out[t, v] = _completed(geo, v, subject[t].X, dets[t][v], p, taken)
+            for v in range(V) if mirrored else ():
+                if v not in subject[t].views:
+                    kp = _best_fit(geo, v, subject[t].X, dets[t][v], {p for w, p in taken if w == v}, True)
+                    if kp is not None:
+                        out[t, v] = kp
             continue
         near = min(known, key=lambda k: abs(k - t))
         if abs(near - t) > max_gap:
             continue
-        X = subject[near].X
         for v in range(V):
-            if len(dets[t][v]) == 0:
-                continue
-            ab = geo.normalise(v, dets[t][v])
-            fits = [(geo.residual(v, X, ab[p]) / geo.tau[v], p) for p in range(len(dets[t][v]))]
-            if min(fits)[0] <= 1.0:
-                out[t, v] = dets[t][v][min(fits)[1]]
+            kp = _best_fit(geo, v, subject[near].X, dets[t][v], (), mirrored)
+            if kp is not None:
+                out[t, v] = kp
     report["views_per_frame"] = [int(np.sum(np.any(out[t, :, :, 2] > 0, axis=1))) for t in range(T)]
     return out, report
 
@@ -485,12 +514,13 @@ def load_subject(
     hint: str | None = None,
     check: bool = True,
     total: int | None = None,
+    mirrored: bool = False,
 ) -> SubjectKeypoints:
     """Read one keypoint folder per camera (OpenPose-format JSON, :mod:`jaxmocap.io.openpose`) for the frame
     numbers ``frames``, matched by the frame number in the file names (a frame without a file has no detections;
     with ``total``, the videos' frame count, a file numbered ``≥ total`` is refused); the layout (``"auto"``: :func:`jaxmocap.io.keypoints.detect_layout`, then ``hint`` — e.g. a
     Pose2Sim ``Config.toml``'s — when the files leave it open); the calibration checks of :func:`check_rig`
-    (``check``) and the subject of :func:`select_subject`."""
+    (``check``) and the subject of :func:`select_subject` (``mirrored``: left-right mirrors allowed)."""
     from jaxmocap.io import keypoints as kp_mod
     from jaxmocap.io.openpose import frame_files, read_people
 
@@ -565,7 +595,7 @@ def load_subject(
     ]
     if check:
         notes += check_rig(rig, dets, where)
-    keypoints, report = select_subject(rig, dets, fps)
+    keypoints, report = select_subject(rig, dets, fps, mirrored=mirrored)
     if rig.num_views > 1 and report["subject_frames"] == 0:
         notes.append("no person is seen consistently by two cameras in any frame: no detections used")
     return SubjectKeypoints(keypoints.astype(np.float32), layout, notes)

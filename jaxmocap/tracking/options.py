@@ -200,7 +200,9 @@ class TrackOptions:
     while its option values are applied by :meth:`from_preset` (or :func:`jaxmocap.api.run_options`), under the
     options given explicitly; ``count_modes``: record in each frame's diagnostics the number of modes of the
     particle set after each annealing layer (:func:`jaxmocap.eval.mixtures.count_layer_modes`; APF-based filters;
-    about 0.1 s of host time per layer; not part of :meth:`identity`).
+    about 0.1 s of host time per layer; not part of :meth:`identity`); ``detector``: the 2D pose detector that
+    makes the keypoints of videos given without them (:mod:`jaxmocap.io.detect`): ``auto`` (the built-in
+    detector when it is installed), ``none``, or a detector's name.
     """
 
     preset: str | None = None
@@ -237,6 +239,7 @@ class TrackOptions:
     annealing: str = "auto"
     dynamics_fraction: float | None = None
     detection_fraction: float | None = None
+    detector: str = "auto"
 
     @classmethod
     def from_preset(cls, name: str, **options) -> TrackOptions:
@@ -292,6 +295,7 @@ _IDENTITY_DEFAULTS = {
     "annealing": "auto",
     "dynamics_fraction": None,
     "detection_fraction": None,
+    "detector": "auto",
 }
 
 

@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmocap.choices import ANNEALINGS, PROPOSALS, parse_frames
+from jaxmocap.choices import ANNEALINGS, DETECTORS, PROPOSALS, parse_frames
 from jaxmocap.errors import MocapInputError
 from jaxmocap.filters.annealing import Schedule
 from jaxmocap.filters.factory import GRADIENT_FILTERS, make_filter, partition_counts
@@ -203,6 +203,8 @@ class TrackSetup:
             raise ValueError(f"unknown proposal {o.proposal!r}; choose one of {', '.join(PROPOSALS)}")
         if o.annealing not in ANNEALINGS:
             raise ValueError(f"unknown annealing {o.annealing!r}; choose one of {', '.join(ANNEALINGS)}")
+        if o.detector not in DETECTORS:
+            raise ValueError(f"unknown detector {o.detector!r}; choose one of {', '.join(DETECTORS)}")
         fixed = Schedule.iros2007() if o.annealing == "iros2007" else None
         self.layers = o.layers if o.layers is not None else default_layers(o.filter)[0]
         if fixed is not None and o.layers is None and o.filter not in SINGLE_LAYER:

@@ -77,6 +77,23 @@ def test_subject_of_the_real_demo_whatever_the_order_of_people(rig):
     np.testing.assert_array_equal(reordered, kp)
 
 
+def test_a_view_with_left_and_right_swapped(rig):
+    """cam02's detections with left and right swapped (a back read as a front): left out of the subject, or, with
+    ``mirrored``, taken back mirrored: cam02's original detections again, the other views as without it."""
+    dets = _dets(FOLDERS, FRAMES)
+    kp, _ = S.select_subject(rig, dets, fps=60.0)
+    swapped = [[d[:, S.MIRROR] if v == 1 else d for v, d in enumerate(row)] for row in dets]
+    left_out, report = S.select_subject(rig, swapped, fps=60.0)
+    assert report["views_per_frame"] == [3] * len(FRAMES) and not np.any(left_out[:, 1, :, 2] > 0)
+    back, report = S.select_subject(rig, swapped, fps=60.0, mirrored=True)
+    assert report["views_per_frame"] == [4] * len(FRAMES)
+    np.testing.assert_array_equal(back[:, 1], kp[:, 1])
+    np.testing.assert_array_equal(back[:, [0, 2, 3]], left_out[:, [0, 2, 3]])
+    assert sorted(S.MIRROR) == list(range(len(EVAL_JOINTS))) and S.MIRROR[EVAL_JOINTS.index("left_knee")] == (
+        EVAL_JOINTS.index("right_knee")
+    )
+
+
 def test_the_subject_stays_tracked(rig):
     """Synthetic: the subject (Pose2Sim's frame-0 joints) in every view, a bystander 2 m away seen by cam01 and
     cam02 only; in frame 5 the subject is hidden from cam01/cam02, so that both people are seen by two cameras.

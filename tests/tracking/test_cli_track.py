@@ -132,6 +132,24 @@ def _main(capsys, *argv):
     return code, captured.err
 
 
+def _videos_track(capsys, vids, calib, out, *options):
+    """``jaxmocap track --videos … --calibration … --out …`` without the 2D detector (these videos hold no
+    person)."""
+    return _main(
+        capsys,
+        "track",
+        "--videos",
+        *vids,
+        "--calibration",
+        calib,
+        "--out",
+        out,
+        "--detector",
+        "none",
+        *options,
+    )
+
+
 def _one_error(code, err, *needles):
     assert code == 2, err
     assert err.startswith("jaxmocap: error: ") and err.count("\n") == 1 and "Traceback" not in err, err
@@ -244,9 +262,7 @@ def test_non_finite_depth(capsys, videos):
                 z[5, 7] = np.nan
             np.save(d / f"{t:04d}.npy", z)
         dirs.append(d)
-    code, err = _main(
-        capsys, "track", "--videos", *vids, "--calibration", calib, "--depth", *dirs, "--out", tmp / "o"
-    )
+    code, err = _videos_track(capsys, vids, calib, tmp / "o", "--depth", *dirs)
     _one_error(code, err, "0000.npy", "NaN/inf")
 
 
@@ -254,24 +270,13 @@ def test_empty_scene(capsys, tmp_path):
     calib = tmp_path / "calib.toml"
     calibration.save_calibration(calib, _rig())
     vids = [_video(tmp_path / f"{k}.avi", 6, moving=False) for k in "ab"]
-    code, err = _main(capsys, "track", "--videos", *vids, "--calibration", calib, "--out", tmp_path / "o")
+    code, err = _videos_track(capsys, vids, calib, tmp_path / "o")
     _one_error(code, err, "no person")
 
 
 def test_bad_options(capsys, videos, sequence, tmp_path):
     tmp, calib, vids = videos
-    code, err = _main(
-        capsys,
-        "track",
-        "--videos",
-        *vids,
-        "--calibration",
-        calib,
-        "--init",
-        "groundtruth",
-        "--out",
-        tmp / "o",
-    )
+    code, err = _videos_track(capsys, vids, calib, tmp / "o", "--init", "groundtruth")
     _one_error(code, err, "groundtruth")
     code, err = _main(capsys, "track", sequence, "--cues", "foreground,smell", "--out", tmp / "o")
     _one_error(code, err, "unknown cue 'smell'")
