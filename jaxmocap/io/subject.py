@@ -28,8 +28,11 @@ projection, mirrored.
 frames of the best 2-view residual ``/ τ`` of every pair of cameras. When some pair disagrees (> 1), every
 assignment of the detection folders to the cameras (up to 6 cameras) is tried: if another order makes every pair
 agree, the input is refused naming that order; a camera that agrees with no other camera is refused; and the
-triangulated subject's limbs must be of human size (thigh and upper arm 0.15–0.8 m; a 1000× larger subject means
-translations in millimetres).
+triangulated subject's limbs must be of human size up to a unit's factor: thigh and upper arm are 0.15–0.8 m, and
+the median triangulated length is refused outside 0.05–3 m (a 1000× larger subject means translations in
+millimetres, a 100× larger one centimetres; the margin lets a stereo pair with a short baseline, whose
+triangulation of noisy detections stretches the limbs, pass: 0.92 m measured on a synthetic walk at 320×240 over a
+0.3 m baseline).
 """
 
 from __future__ import annotations
@@ -429,6 +432,11 @@ def check_order(
     return M
 
 
+#: the median triangulated thigh / upper-arm length (m) outside which the calibration's units are refused: a
+#: person's 0.15–0.8 m with room for triangulation noise, still a factor ≥ 10 from a unit error's lengths
+LIMB_UNIT_RANGE = (0.05, 3.0)
+
+
 def check_rig(rig, dets: list[list[np.ndarray]], source=None, max_frames: int = 12) -> list[str]:
     """Refuse (``MocapInputError`` naming ``source``) a calibration the detections ``dets[t][v]`` contradict
     (module docstring); returns notes. Uses up to ``max_frames`` frames spread over those where two or more views
@@ -461,12 +469,12 @@ def check_rig(rig, dets: list[list[np.ndarray]], source=None, max_frames: int = 
             lengths += [x for x in limb_lengths(p.X) if np.isfinite(x)]
     if len(lengths) >= 4:
         med = float(np.median(lengths))
-        if not 0.15 <= med <= 0.8:
+        if not LIMB_UNIT_RANGE[0] <= med <= LIMB_UNIT_RANGE[1]:
             hint = " (translations in millimetres? --calibration-units mm)" if 150 <= med <= 800 else ""
             raise MocapInputError(
                 source,
                 f"the detections triangulate to limbs {med:.3g} m long (thigh and upper arm; 0.15-0.8 m for a "
-                f"person): the calibration's units disagree with metres{hint}",
+                f"person, {LIMB_UNIT_RANGE[0]:g}-{LIMB_UNIT_RANGE[1]:g} m accepted): the calibration's units disagree with metres{hint}",
             )
     return notes
 
