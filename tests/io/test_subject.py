@@ -143,7 +143,9 @@ def test_millimetre_translations_seen_in_the_limbs(rig):
     mm = dataclasses.replace(rig, t=np.asarray(rig.t) * 1000.0)
     with pytest.raises(MocapInputError, match=r"limbs .* m long .*millimetres"):
         S.check_rig(mm, _dets(FOLDERS, range(10)), "calib.toml")
-    cm = dataclasses.replace(rig, t=np.asarray(rig.t) * 100.0)  # centimetres: refused, with no millimetre hint
+    cm = dataclasses.replace(
+        rig, t=np.asarray(rig.t) * 100.0
+    )  # centimetres: refused, with no millimetre hint
     with pytest.raises(MocapInputError, match=r"limbs .* m long .*metres$"):
         S.check_rig(cm, _dets(FOLDERS, range(10)), "calib.toml")
 
