@@ -592,12 +592,26 @@ class Likelihood:
         """Values ``(N,)`` and gradients ``∂ℓ/∂x (N, D)`` of particles ``X (N, D)``: the per-particle
         :meth:`log_likelihood` differentiated in one ``vmap`` (reverse mode through the chunked ``lax.map`` of
         :meth:`batch` was measured 4–9× slower on a CPU), its flesh points projected as world points
-        (``by_runs=False``: :meth:`_surface_geometry`). Non-finite values give ``−inf`` and a zero gradient."""
+        (``by_runs=False``: :meth:`_surface_geometry`). Non-finite values give ``−inf`` and a zero gradient.
+
+        More than ``chunk_size`` particles go through it ``chunk_size`` at a time, as in :meth:`batch` (``lax.map``
+        over the vmapped value-and-gradient of a chunk, padded with copies of the first particle): the reverse
+        pass keeps every intermediate of the forward one, which for a thousand particles no longer stays in the
+        caches (``full25``, default cues, 1000 particles on a CPU: 15 % faster in chunks of 128)."""
         aux = self.prepare(obs)
-        f = jax.value_and_grad(
-            lambda x: self.log_likelihood(x, obs, layer, aux, by_runs=False, partition=partition)
+        f = jax.vmap(
+            jax.value_and_grad(
+                lambda x: self.log_likelihood(x, obs, layer, aux, by_runs=False, partition=partition)
+            )
         )
-        return finite_value_and_grad(*jax.vmap(f)(X))
+        N, D = X.shape
+        c = self.chunk_size
+        if c <= 0 or N <= c:
+            return finite_value_and_grad(*f(X))
+        n = -(-N // c)
+        Xp = jnp.concatenate([X, jnp.broadcast_to(X[:1], (n * c - N, D))]) if n * c > N else X
+        values, grads = jax.lax.map(f, Xp.reshape(n, c, D))
+        return finite_value_and_grad(values.reshape(-1)[:N], grads.reshape(-1, D)[:N])
 
     # -----------------------------------------------------------------------------------------------------------
     # Reference data (first frame)
