@@ -235,6 +235,13 @@ SCRIPTS: dict[str, Script] = {
         "--programs --isolate --out benchmarks/results/compile_programs.md",
         writes=("compile_programs.md",),
     ),
+    "grad_cost": Script(
+        "Value and gradient of the tracker's likelihood in forward evaluations (the gradient filters' cost)",
+        "perf/grad_cost.py",
+        "--general --out benchmarks/results/grad_cost.md",
+        writes=("grad_cost.md",),
+        slow=True,
+    ),
     "profile_likelihood": Script(
         "Where the compiled likelihood spends its time", "perf/profile_likelihood.py"
     ),

@@ -592,12 +592,30 @@ class Likelihood:
         """Values ``(N,)`` and gradients ``∂ℓ/∂x (N, D)`` of particles ``X (N, D)``: the per-particle
         :meth:`log_likelihood` differentiated in one ``vmap`` (reverse mode through the chunked ``lax.map`` of
         :meth:`batch` was measured 4–9× slower on a CPU), its flesh points projected as world points
-        (``by_runs=False``: :meth:`_surface_geometry`). Non-finite values give ``−inf`` and a zero gradient."""
+        (``by_runs=False``: :meth:`_surface_geometry`). Non-finite values give ``−inf`` and a zero gradient.
+
+        More than ``2 · chunk_size`` particles go through it in ``n = ⌈N / (2 chunk_size)⌉`` chunks of ``⌈N / n⌉``
+        (``lax.map`` over the vmapped value-and-gradient of a chunk, padded with copies of the first particle): the
+        reverse pass keeps every intermediate of the forward one, which for a thousand particles no longer stays in
+        the caches, while each chunk repeats the per-call work inside the loop (measured on a CPU, default cues:
+        ``upper14`` at 1000 particles 25 % faster in chunks of 128 or 250 than in one; ``full25`` at 200 particles
+        10 % slower in two chunks, 60 % slower in four).
+        """
         aux = self.prepare(obs)
-        f = jax.value_and_grad(
-            lambda x: self.log_likelihood(x, obs, layer, aux, by_runs=False, partition=partition)
+        f = jax.vmap(
+            jax.value_and_grad(
+                lambda x: self.log_likelihood(x, obs, layer, aux, by_runs=False, partition=partition)
+            )
         )
-        return finite_value_and_grad(*jax.vmap(f)(X))
+        N, D = X.shape
+        most = 2 * self.chunk_size
+        if most <= 0 or N <= most:
+            return finite_value_and_grad(*f(X))
+        n = -(-N // most)
+        c = -(-N // n)  # n chunks of at most 2 chunk_size, as equal as can be: fewer than n copies padded
+        Xp = jnp.concatenate([X, jnp.broadcast_to(X[:1], (n * c - N, D))]) if n * c > N else X
+        values, grads = jax.lax.map(f, Xp.reshape(n, c, D))
+        return finite_value_and_grad(values.reshape(-1)[:N], grads.reshape(-1, D)[:N])
 
     # -----------------------------------------------------------------------------------------------------------
     # Reference data (first frame)

@@ -14,6 +14,7 @@ foreground divergence (eq. 4.6); it is differentiable in the pose.
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -59,6 +60,15 @@ def primitives_energy(prims: flesh.Primitives, rig: camera.Rig, uv, w, d_max) ->
     f = rig.K[:, 0, 0][:, None]
     pa = (f * ra[None] / jnp.maximum(za, 1e-3))[..., None]  # (V, S, 1)
     pb = (f * rb[None] / jnp.maximum(zb, 1e-3))[..., None]
+    dmin = jnp.maximum(nearest_capsule_distance(ua, ub, pa, pb, uv), 0.0)  # (V, M)
+    e = jnp.minimum(dmin / d_max[:, None], 1.0)
+    return jnp.sum(w * e, axis=-1) / jnp.maximum(jnp.sum(w, axis=-1), 1.0)
+
+
+def _capsule_distances(ua, ub, pa, pb, uv):
+    """``(V, S, M)`` signed distances from the samples ``uv (V, M, 2)`` to the projected capsules (axes ``ua → ub
+    (V, S, 2)``, radii ``pa, pb (V, S, 1)``): the distance to the foot of the perpendicular ``τ`` (clamped to the
+    axis) less the radius there."""
     # (V, S, M) arrays, one coordinate at a time: the samples on the minor axis and the minimum over capsules
     # across rows vectorise on a CPU (with (V, M, S, 2) and reductions over the short minor axes: 2× slower)
     ax, ay = ua[..., 0:1], ua[..., 1:2]
@@ -68,10 +78,43 @@ def primitives_energy(prims: flesh.Primitives, rig: camera.Rig, uv, w, d_max) ->
     qy = uv[:, None, :, 1] - ay
     tau = jnp.clip((qx * dx + qy * dy) / len2, 0.0, 1.0)
     cx, cy = qx - tau * dx, qy - tau * dy
-    dist = jnp.sqrt(cx * cx + cy * cy + 1e-12) - (pa + tau * (pb - pa))
-    dmin = jnp.maximum(jnp.min(dist, axis=1), 0.0)  # (V, M)
-    e = jnp.minimum(dmin / d_max[:, None], 1.0)
-    return jnp.sum(w * e, axis=-1) / jnp.maximum(jnp.sum(w, axis=-1), 1.0)
+    return jnp.sqrt(cx * cx + cy * cy + 1e-12) - (pa + tau * (pb - pa))
+
+
+@jax.custom_jvp
+def nearest_capsule_distance(ua, ub, pa, pb, uv) -> jnp.ndarray:
+    """``(V, M)``: ``min_s`` of :func:`_capsule_distances` (shapes there).
+
+    Its derivative is that of the nearest capsule's distance alone (``s* = argmin_s``; at ties the first), through
+    its own JVP: the reverse pass runs over ``(V, M)`` samples instead of the ``(V, S, M)`` sample-capsule pairs
+    (whose every intermediate the automatic derivative of the minimum keeps). The value is the same expression as
+    without derivatives."""
+    return jnp.min(_capsule_distances(ua, ub, pa, pb, uv), axis=1)
+
+
+@nearest_capsule_distance.defjvp
+def _nearest_capsule_distance_jvp(primals, tangents):
+    ua, ub, pa, pb, uv = primals
+    dist = _capsule_distances(ua, ub, pa, pb, uv)
+    out = jnp.min(dist, axis=1)
+    # the first nearest capsule (V, M), by a plain minimum (XLA's CPU backend runs argmin's two-operand reduction
+    # several times slower)
+    S = dist.shape[1]
+    rank = jnp.arange(S, dtype=jnp.int32)[None, :, None]
+    near = jnp.minimum(jnp.min(jnp.where(dist <= out[:, None, :], rank, S), axis=1), S - 1)
+
+    def pick(a):  # (V, S, k) capsule values -> (V, M, k) of each sample's nearest capsule
+        return jnp.take_along_axis(a, near[..., None], axis=1)
+
+    V, M = near.shape
+
+    def one(ua, ub, pa, pb, uv):  # each sample's distance to its own capsule: (V, M, ·) values -> (V, M)
+        flat = lambda a: a.reshape(V * M, 1, a.shape[-1])
+        return _capsule_distances(flat(ua), flat(ub), flat(pa), flat(pb), flat(uv)).reshape(V, M)
+
+    args = (pick(ua), pick(ub), pick(pa), pick(pb), uv)
+    t_args = tuple(pick(jnp.asarray(t)) for t in tangents[:4]) + (jnp.asarray(tangents[4]),)
+    return out, jax.jvp(one, args, t_args)[1]
 
 
 def coverage_energy(

@@ -83,7 +83,8 @@ def batch_value_and_grad(loglik_batch: Callable, X: jnp.ndarray, observation, la
 
     A likelihood that knows its own batched gradient takes it: one that carries a ``batch_value_and_grad(X,
     observation, layer)`` attribute (the tracker's likelihood), or a bound ``Likelihood.batch``
-    (:meth:`Likelihood.batch_value_and_grad`: the per-particle log-likelihood differentiated in one ``vmap``).
+    (:meth:`Likelihood.batch_value_and_grad`: the per-particle log-likelihood differentiated in one ``vmap``, in
+    chunks past ``2 · chunk_size`` particles).
     Any other ``loglik_batch(X, observation, layer) -> (N,)`` must treat the particles independently, so that
     ``∂/∂x_i Σ_j ℓ(x_j) = ∂ℓ(x_i)/∂x_i``: one reverse pass (``jax.vjp`` with a cotangent of ones) gives all
     gradients.

@@ -27,8 +27,11 @@ Nearest pixel: ``iu = ⌊u + ½⌋`` (ties round up), inside iff ``−½ < u < W
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
+from jax.custom_derivatives import SymbolicZero
 
 
 def inside_image(uv: jnp.ndarray, height: int, width: int) -> jnp.ndarray:
@@ -125,16 +128,66 @@ def gather_bilinear(
     maps: jnp.ndarray, i00: jnp.ndarray, fu: jnp.ndarray, fv: jnp.ndarray, scale: float = 1.0
 ) -> jnp.ndarray:
     """Bilinear interpolation of ``maps (V, H, W)`` (or ``(V, H, W, C)``) at indices from :func:`bilinear_index`:
-    ``((1−fu)(1−fv) m₀₀ + fu(1−fv) m₀₁ + (1−fu) fv m₁₀ + fu fv m₁₁) · scale`` in float32."""
+    ``((1−fu)(1−fv) m₀₀ + fu(1−fv) m₀₁ + (1−fu) fv m₁₀ + fu fv m₁₁) · scale`` in float32.
+
+    Differentiable in ``fu``, ``fv`` (and linear in ``maps``) through its own JVP: the derivatives are the finite
+    differences of the four texels already read, ``∂/∂fu = (m₀₁ − m₀₀)(1 − fv) + (m₁₁ − m₁₀) fv`` and
+    ``∂/∂fv = (m₁₀ + (m₁₁ − m₁₀) fu) − (m₀₀ + (m₀₁ − m₀₀) fu)`` (times ``scale``), computed next to the value in
+    the forward pass; the reverse pass multiplies them by the cotangent and reads no texel again. The value is
+    the same expression as without derivatives.
+    """
+    return _bilinear(maps, i00, fu, fv, float(scale))
+
+
+def _texels(maps, i00):
     W = maps.shape[2]
-    a = gather(maps, i00)
-    b = gather(maps, i00 + 1)
-    c = gather(maps, i00 + W)
-    d = gather(maps, i00 + W + 1)
-    if maps.ndim == 4:
+    return gather(maps, i00), gather(maps, i00 + 1), gather(maps, i00 + W), gather(maps, i00 + W + 1)
+
+
+def _interpolate(a, b, c, d, fu, fv, scale):
+    if a.ndim > fu.ndim:
         fu, fv = fu[..., None], fv[..., None]
     out = (a + (b - a) * fu) * (1 - fv) + (c + (d - c) * fu) * fv
     return out * scale if scale != 1.0 else out
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(4,))
+def _bilinear(maps, i00, fu, fv, scale):
+    return _interpolate(*_texels(maps, i00), fu, fv, scale)
+
+
+def _quads(maps: jnp.ndarray) -> jnp.ndarray:
+    """``(V·H·W, 4)``: each pixel's value with those of its right, lower and lower-right neighbours (the four
+    texels a bilinear read at that top-left index interpolates; past the last row of the last view, zeros)."""
+    n = maps.size
+    W = maps.shape[2]
+    flat = jnp.concatenate([maps.reshape(-1), jnp.zeros((W + 1,), maps.dtype)])
+    return jnp.stack([flat[:n], flat[1 : n + 1], flat[W : n + W], flat[W + 1 : n + W + 1]], -1)
+
+
+@functools.partial(_bilinear.defjvp, symbolic_zeros=True)
+def _bilinear_jvp(scale, primals, tangents):
+    maps, i00, fu, fv = primals
+    t_maps, _, t_fu, t_fv = tangents
+    if maps.ndim == 3:  # one gather of the four texels of each sample, read from the map of pixel quads
+        q = gather(_quads(maps), i00)
+        a, b, c, d = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    else:
+        a, b, c, d = _texels(maps, i00)
+    out = _interpolate(a, b, c, d, fu, fv, scale)
+    gu, gv = (fu[..., None], fv[..., None]) if a.ndim > fu.ndim else (fu, fv)
+    top = a + (b - a) * gu
+    du = (b - a) * (1 - gv) + (d - c) * gv
+    dv = c + (d - c) * gu - top
+    tangent = jnp.zeros_like(out)
+    for t, coef in ((t_fu, du), (t_fv, dv)):
+        if not isinstance(t, SymbolicZero):
+            tangent = tangent + coef * (t[..., None] if a.ndim > t.ndim else t)
+    if scale != 1.0:
+        tangent = tangent * scale
+    if not isinstance(t_maps, SymbolicZero):
+        tangent = tangent + _interpolate(*_texels(jnp.asarray(t_maps), i00), fu, fv, scale)
+    return out, tangent
 
 
 def lookup_bilinear(maps: jnp.ndarray, uv: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:

@@ -140,6 +140,11 @@ def test_batched_gradients_match_single_and_mask_dead_particles(scene):
     np.testing.assert_allclose(values, single[0], rtol=1e-6)
     np.testing.assert_allclose(G, single[1], rtol=1e-5, atol=1e-7)
     assert float(jnp.abs(G).max()) > 0
+    # more particles than a chunk: in chunks (the last one padded), the same values and gradients
+    chunked = dataclasses.replace(lik, chunk_size=2)
+    vc, Gc = jax.jit(lambda lik, X, o: lik.batch_value_and_grad(X, o, 0))(chunked, X, obs)
+    np.testing.assert_allclose(vc, values, rtol=1e-6)
+    np.testing.assert_allclose(Gc, G, rtol=1e-5, atol=1e-7)
 
     def dead_rows(lik):  # a batched likelihood whose rows 1 and 3 give NaN / +inf
         def loglik(X, o, layer):
