@@ -285,7 +285,7 @@ SCRIPTS: dict[str, Script] = {
     "accuracy_default": Script(
         "jaxmocap track with its defaults on recording-like input, against triangulating the detections",
         "experiments/accuracy_default.py",
-        "--seeds 5",
+        "--seeds 10",
         writes=("accuracy_default.md",),
         slow=True,
     ),
