@@ -48,6 +48,7 @@ import argparse
 import json
 import os
 import pathlib
+import shutil
 import sys
 import tempfile
 import time
@@ -378,7 +379,12 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", type=int, default=5, help="seeds per clip and rig (default 5)")
     ap.add_argument("--size", default="320x240")
     ap.add_argument("--rigs", nargs="+", default=list(RIGS), choices=RIGS)
-    ap.add_argument("--work", default=None, help="where sequences and per-run results are kept (resumable)")
+    ap.add_argument(
+        "--work",
+        default=None,
+        help="where sequences and per-run results are kept, a rerun resumes there (default "
+        "$TMPDIR/jaxmocap_accuracy_default; with --quick a new temporary folder)",
+    )
     ap.add_argument(
         "--quick", action="store_true", help="one clip, one seed, 8 frames at 160x120, stereo; prints"
     )
@@ -389,10 +395,12 @@ def main(argv=None) -> int:
     clips = [c for c in CLIPS if c[2] == "demo" or pathlib.Path(c[2]).is_file()]
     if a.quick:
         clips, a.seeds, a.size, a.rigs = clips[:1], 1, "160x120", ["stereo"]
-    work = pathlib.Path(
-        a.work
-        or pathlib.Path(tempfile.gettempdir()) / f"jaxmocap_accuracy_default{'_quick' if a.quick else ''}"
-    )
+    if a.work:
+        work = pathlib.Path(a.work)
+    elif a.quick:  # a smoke test tracks every time: a fresh folder
+        work = pathlib.Path(tempfile.mkdtemp(prefix="jaxmocap_accuracy_default_quick_"))
+    else:
+        work = pathlib.Path(tempfile.gettempdir()) / "jaxmocap_accuracy_default"
     command = f"python {common.script(__file__)} --seeds {a.seeds}" + (
         f" --size {a.size}" if a.size != "320x240" else ""
     )
@@ -421,6 +429,8 @@ def main(argv=None) -> int:
     md = report(work, a.rigs, clips, a.seeds, a.size, command, "" if a.quick else READING)
     if not a.quick:
         RESULTS.write_text(md)
+    elif not a.work:
+        shutil.rmtree(work, ignore_errors=True)
     print(md)
     return 0
 
