@@ -289,6 +289,13 @@ SCRIPTS: dict[str, Script] = {
     "accuracy": Script(
         "Tracking accuracy", "experiments/accuracy.py", writes=("accuracy.md",), fn=_accuracy, slow=True
     ),
+    "accuracy_default": Script(
+        "jaxmocap track with its defaults on recording-like input, against triangulating the detections",
+        "experiments/accuracy_default.py",
+        "--seeds 10",
+        writes=("accuracy_default.md",),
+        slow=True,
+    ),
     "li_kulic": Script(
         "Li & Kulic's tracker (--preset li-kulic): their errors, Table I, counts, ten partitions against six",
         "experiments/li_kulic.py",

@@ -108,6 +108,11 @@ def build(config: str, rng):
 # Tracked synthetic sequences
 
 SHARED_CMU = ROOT.parent / "shared" / "data" / "mocap" / "cmu"
+#: the shared motion capture (``shared/data/mocap`` beside the checkout or beside one of its parent folders)
+MOCAP = next(
+    (d for d in (SHARED_CMU.parent, *(p / "shared" / "data" / "mocap" for p in ROOT.parents)) if d.is_dir()),
+    SHARED_CMU.parent,
+)
 BASE_CUES = ("foreground", "edge_distance", "coverage:4")
 
 

@@ -228,3 +228,58 @@ def test_plate_source_is_what_a_recording_gives(tmp_path):
     for p in seq.glob("views/*/mask/*.png"):
         p.unlink()
     assert all(len(src.read(t).masks) == 2 for t in range(3))
+
+
+def test_accuracy_default_baseline_triangulates_as_opencv():
+    """The triangulation baseline of ``experiments/accuracy_default.py``: noise-free detections of three distorted
+    cameras give back the 3D joints (closed form: the points projected by OpenCV); with pixel noise and two views
+    it agrees with ``cv2.triangulatePoints`` on the undistorted points; a joint seen by one view is NaN and
+    counted; the root is the middle of the hips, the head is never estimated."""
+    import types
+
+    import cv2
+    import numpy as np
+
+    from jaxmocap.geometry import camera
+    from jaxmocap.geometry.body import EVAL_JOINTS
+
+    acc = runner.load("accuracy_default")
+    rng = np.random.default_rng(3)
+    K = np.array([[300.0, 0.0, 160.0], [0.0, 300.0, 120.0], [0.0, 0.0, 1.0]])
+    dist = np.array([-0.1, 0.02, 0.001, -0.001, 0.0])
+    rvecs = [np.array([1.4, 0.0, 0.0]), np.array([1.2, 0.6, -0.3]), np.array([1.3, -0.7, 0.4])]
+    tvecs = [np.array([0.0, 1.0, 3.0]), np.array([0.3, 0.9, 3.2]), np.array([-0.2, 1.1, 3.1])]
+    V, T, J = 3, 4, len(EVAL_JOINTS)
+    rig = camera.from_opencv(
+        np.stack([K] * V),
+        np.stack([dist] * V),
+        np.stack([cv2.Rodrigues(r)[0] for r in rvecs]),
+        np.stack(tvecs),
+    )
+    X = rng.uniform([-0.5, -0.5, 0.0], [0.5, 0.5, 1.8], (T, J, 3))
+    kp = np.ones((T, V, J, 3))
+    for v in range(V):
+        uv, _ = cv2.projectPoints(X.reshape(-1, 1, 3), rvecs[v], tvecs[v], K, dist)
+        kp[:, v, :, :2] = uv.reshape(T, J, 2)
+    knee = EVAL_JOINTS.index("left_knee")
+    kp[1, 1:, knee, 2] = 0.0  # seen by view 0 only
+    got, views = acc.triangulate_detections(types.SimpleNamespace(rig=rig, keypoints=kp))
+    hips = [EVAL_JOINTS.index("left_hip"), EVAL_JOINTS.index("right_hip")]
+    body = [j for j in range(J) if EVAL_JOINTS[j] not in ("root", "head")]
+    ok = np.ones((T, J), bool)
+    ok[1, knee] = False
+    sel = ok[:, body]
+    assert np.abs(got[:, body][sel] - X[:, body][sel]).max() < 2e-3
+    assert np.isnan(got[1, knee]).all() and views[1, knee] == 1 and views[0, knee] == 3
+    assert np.isnan(got[:, EVAL_JOINTS.index("head")]).all()
+    np.testing.assert_allclose(got[:, 0], X[:, hips].mean(axis=1), atol=2e-3)
+
+    noisy = kp.copy()
+    noisy[..., :2] += rng.normal(0.0, 1.5, noisy[..., :2].shape)
+    noisy[:, 2, :, 2] = 0.0  # two views: the DLT is OpenCV's
+    got, _ = acc.triangulate_detections(types.SimpleNamespace(rig=rig, keypoints=noisy))
+    P = [np.hstack([cv2.Rodrigues(r)[0], t[:, None]]) for r, t in zip(rvecs, tvecs, strict=True)]
+    ab = [cv2.undistortPoints(noisy[:, v, :, :2].reshape(-1, 1, 2), K, dist).reshape(-1, 2).T for v in (0, 1)]
+    H = cv2.triangulatePoints(P[0], P[1], ab[0], ab[1])
+    ref = (H[:3] / H[3]).T.reshape(T, J, 3)
+    assert np.abs(got[:, body][sel] - ref[:, body][sel]).max() < 2e-3

@@ -47,22 +47,13 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmar
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 
 import common
-from scenes import SHARED_CMU, CachedTracker, RecordingSource
+from scenes import MOCAP, CachedTracker, RecordingSource
 
 from jaxmocap.io.sources import SequenceSource
 from jaxmocap.synth import generate as synth
 from jaxmocap.tracking.options import TrackOptions
 
 RESULTS = common.RESULTS / "lopez_mendez.md"
-#: the shared motion capture (``shared/data/mocap`` beside the checkout or beside one of its parent folders)
-MOCAP = next(
-    (
-        d
-        for d in (SHARED_CMU.parent, *(p / "shared" / "data" / "mocap" for p in common.ROOT.parents))
-        if d.is_dir()
-    ),
-    SHARED_CMU.parent,
-)
 SCHEMES = ("apf", "m-apf", "fbapf", "fbapf2", "fbapf3", "apf-divergence")
 LABELS = dict(zip(SCHEMES, ("APF", "M-APF", "FBAPF", "FBAPF2", "FBAPF3", "APFdivergence"), strict=True))
 RENDER = dict(background="room", clutter="low", illumination=0.1, blur=2, noise=0.01)
