@@ -602,12 +602,8 @@ class Likelihood:
         10 % slower in two chunks, 60 % slower in four).
         """
         aux = self.prepare(obs)
-        f = jax.vmap(
-            jax.value_and_grad(
-                lambda x: self.log_likelihood(x, obs, layer, aux, by_runs=False, partition=partition)
-            )
-        )
-        N, D = X.shape
+        ll = lambda x: self.log_likelihood(x, obs, layer, aux, by_runs=False, partition=partition)  # noqa: E731
+        f, (N, D) = jax.vmap(jax.value_and_grad(ll)), X.shape
         most = 2 * self.chunk_size
         if most <= 0 or N <= most:
             return finite_value_and_grad(*f(X))

@@ -39,6 +39,12 @@ __all__ = [
 #: joints, :func:`jaxmocap.io.keypoints.eval_keypoints`): all but the root and the head.
 KEYPOINT_OF = KEYPOINT_INDEX
 
+#: triangulated joints farther than this (m) from the median of the frame's triangulated joints are left out of the
+#: first pose (a person's joints lie within about 1.1 m of their median; noisy detections in a close stereo pair
+#: move a joint by about 0.2 m per pixel of disparity error along the ray, and a wrong detection in one view puts it
+#: metres away: 14 m and 134 m seen on synthetic stereo sequences)
+OUTLIER_M = 3.0
+
 #: the pixel standard deviation a detection's weight assumes in the reprojection fit of :func:`keypoint_pose`
 KEYPOINT_SIGMA_PX = 3.0
 
@@ -88,7 +94,8 @@ def keypoint_pose(
     model, rig: camera.Rig, keypoints: np.ndarray, init: np.ndarray | None = None, depth=None
 ) -> np.ndarray | None:
     """IK state from 2D keypoints ``(V, K, 3)`` of every view (full-size pixels): each evaluation joint of
-    :data:`KEYPOINT_OF` triangulated from the views that detect it (confidence > 0.1, at least two), the root as
+    :data:`KEYPOINT_OF` triangulated from the views that detect it (confidence > 0.1, at least two; those farther
+    than :data:`OUTLIER_M` from the median of the others left out), the root as
     the middle of the hips, then :func:`jaxmocap.fit.ik.fit_pose`, refined by :func:`jaxmocap.fit.ik.fit_pose_2d` on
     the detections (weights confidence / :data:`KEYPOINT_SIGMA_PX`²; :func:`reprojection_fit`, which reads the
     frame's ``depth`` maps — one per view, metres, 0 = none — when given). None with fewer than four joints."""
@@ -103,6 +110,9 @@ def keypoint_pose(
             )
             if np.all(np.isfinite(X)):
                 targets[name] = X
+    if targets:  # a joint triangulated far from the others is a wrong detection or a match at a grazing angle
+        centre = np.median(np.stack(list(targets.values())), axis=0)
+        targets = {n: X for n, X in targets.items() if np.linalg.norm(X - centre) <= OUTLIER_M}
     if "left_hip" in targets and "right_hip" in targets:
         targets["root"] = 0.5 * (targets["left_hip"] + targets["right_hip"])
     names = model.joint_names
