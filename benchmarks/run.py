@@ -382,6 +382,13 @@ SCRIPTS: dict[str, Script] = {
         writes=("pose2sim_loo.md",),
         env="JAX_PLATFORMS=cpu",
     ),
+    "pose2sim_loo_detector": Script(
+        "Pose2Sim demo recording, leave one camera out, keypoints from the built-in detector",
+        "experiments/pose2sim_track.py",
+        "--out /tmp/p2s_loo_det --leave-one-out --detector",
+        writes=("pose2sim_loo_detector.md",),
+        env="JAX_PLATFORMS=cpu",
+    ),
     "detector_pose2sim": Script(
         "The built-in 2D pose detector on the Pose2Sim recording: time, distance to OpenPose, tracking with it",
         "experiments/detector_pose2sim.py",

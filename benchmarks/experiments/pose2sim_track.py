@@ -75,8 +75,9 @@ def paths(root: pathlib.Path, images: bool = False) -> dict:
     return out
 
 
-def make_project(dest: pathlib.Path, cams) -> pathlib.Path:
-    """A Pose2Sim project folder at ``dest`` of links to the recording, with the cameras ``cams`` (indices)."""
+def make_project(dest: pathlib.Path, cams, pose: bool = True) -> pathlib.Path:
+    """A Pose2Sim project folder at ``dest`` of links to the recording, with the cameras ``cams`` (indices); without
+    ``pose`` no ``pose/`` folder (the tracker's built-in detector makes the keypoints)."""
     if dest.exists():
         shutil.rmtree(dest)
     for sub in ("videos", "pose", "calibration/extrinsics"):
@@ -90,7 +91,8 @@ def make_project(dest: pathlib.Path, cams) -> pathlib.Path:
     for c in cams:
         name = CAMS[c]
         (dest / "videos" / f"{name}.mp4").symlink_to(DATA / "videos" / f"{name}.mp4")
-        (dest / "pose" / f"{name}_json").symlink_to(DATA / DERIVED / "pose" / f"{name}_json")
+        if pose:
+            (dest / "pose" / f"{name}_json").symlink_to(DATA / DERIVED / "pose" / f"{name}_json")
         ext = DATA / "calibration" / "extrinsics" / f"{name}_ext.png"
         (dest / "calibration" / "extrinsics" / ext.name).symlink_to(ext)
     return dest
@@ -127,7 +129,7 @@ def reprojection(rig_full: camera.Rig, points: np.ndarray, kp_full: np.ndarray, 
 
 def track(out: pathlib.Path, cams, a) -> dict:
     """One run on the project of cameras ``cams``; returns the numbers (the run is kept in ``out / "run"``)."""
-    project = make_project(out / "project", cams)
+    project = make_project(out / "project", cams, pose=not a.detector)
     t0 = time.monotonic()
     res = jaxmocap.track(
         input=project,
@@ -141,7 +143,7 @@ def track(out: pathlib.Path, cams, a) -> dict:
         frames=a.frames,
     )
     wall = time.monotonic() - t0
-    src = open_project(project)
+    src = open_project(project, detector="blazepose" if a.detector else "none", frames=a.frames)
     try:
         idx = [int(f) for f in res.frames]
         ref, markers, _ = reference_joints(DATA / TRC)
@@ -210,6 +212,17 @@ def leave_one_out(out: pathlib.Path, a) -> list[dict]:
         names = list(full.view_names)
     finally:
         full.close()
+    kp_base = kp_all  # what the three cameras give the baseline: the shipped detections, or the detector's
+    if a.detector:
+        det = open_project(
+            make_project(out / "project_all_detector", (0, 1, 2, 3), pose=False),
+            detector="blazepose",
+            frames=a.frames,
+        )
+        try:
+            kp_base = np.asarray(det.keypoints)
+        finally:
+            det.close()
     rows = []
     for held in range(4):
         cams = tuple(c for c in range(4) if c != held)
@@ -218,7 +231,7 @@ def leave_one_out(out: pathlib.Path, a) -> list[dict]:
         kp = kp_all[idx]
         joints = np.asarray(r.pop("_joints"))
         e_track = held_out_errors(rig, joints, kp, held)
-        e_tri = held_out_errors(rig, triangulated(rig, kp, cams), kp, held)
+        e_tri = held_out_errors(rig, triangulated(rig, kp_base[idx], cams), kp, held)
         both = np.isfinite(e_track) & np.isfinite(e_tri)  # the same detections for both
         rows.append(
             {
@@ -260,6 +273,16 @@ def loo_report(rows: list[dict], a, argv) -> str:
         "confidence, detections under 0.3 dropped: Pose2Sim's weighting, without its view rejection) and projected "
         "the same way. Both are compared with the held-out camera's own detections (confidence > 0.3; the same "
         "detections for both), in full-size pixels. The held-out detections are not seen by either.\n",
+        *(
+            [
+                "**Keypoints from the built-in detector** (`--detector`): the three cameras' projects have no "
+                "`pose/` folder, so `jaxmocap.track` detects the keypoints itself (BlazePose, `jaxmocap.io.detect`), "
+                "and the baseline triangulates the same detector's keypoints of those cameras; the held-out camera "
+                "is scored against its shipped OpenPose detections, as above.\n"
+            ]
+            if a.detector
+            else []
+        ),
         "## Mean (median) reprojection error in the held-out camera, px\n",
         "| held out | tracked | triangulated | tracker lower | detections | tracked 3D distance to the .trc (mm) | s/frame |",
         "|---|---|---|---|---|---|---|",
@@ -289,7 +312,9 @@ def loo_report(rows: list[dict], a, argv) -> str:
             + " |"
         )
     text = "\n".join(lines) + "\n"
-    common.write_result(common.RESULTS / "pose2sim_loo.md", text, cmd)
+    common.write_result(
+        common.RESULTS / ("pose2sim_loo_detector.md" if a.detector else "pose2sim_loo.md"), text, cmd
+    )
     return text
 
 
@@ -396,6 +421,12 @@ def main(argv=None) -> int:
         "--leave-one-out",
         action="store_true",
         help=f"track from three cameras, compare in the fourth with triangulation ({common.RESULTS}/pose2sim_loo.md)",
+    )
+    ap.add_argument(
+        "--detector",
+        action="store_true",
+        help="the three cameras' keypoints from the built-in detector, not the shipped detections (tracked and "
+        f"triangulated alike; scored against the held-out camera's shipped ones; {common.RESULTS}/pose2sim_loo_detector.md)",
     )
     a = ap.parse_args(argv)
     if a.make_test_data:
