@@ -292,7 +292,7 @@ SCRIPTS: dict[str, Script] = {
     "accuracy_default": Script(
         "jaxmocap track with its defaults on recording-like input, against triangulating the detections",
         "experiments/accuracy_default.py",
-        "--seeds 10",
+        "--seeds 3",
         writes=("accuracy_default.md",),
         slow=True,
     ),
