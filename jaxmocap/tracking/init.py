@@ -150,15 +150,27 @@ DEPTH_BEHIND_SURFACE = 0.1
 DEPTH_SIGMA = 0.05
 
 
+@jax.jit
+def _fit_from(model, rig, uv, w, x0):
+    """One reprojection fit from ``x0`` (:func:`jaxmocap.fit.ik.fit_pose_2d`), its joints ``(J, 3)`` and its
+    weighted reprojection cost, compiled as one program (eager calls would compile every small operation)."""
+    xf = ik.fit_pose_2d(model, rig, uv, w, x0)
+    X = ik.model_joints(model, xf)
+    r = camera.project(rig, X) - jnp.nan_to_num(uv)
+    return xf, X, jnp.sum(w * jnp.sum(r**2, axis=-1))
+
+
+_joints = jax.jit(ik.model_joints)
+_project_with_depth = jax.jit(camera.project_with_depth)
+
+
 def _depth_misfits(model, rig, X: np.ndarray, depth) -> np.ndarray:
     """``z_v − s − d_v`` (m) for the :data:`DEPTH_JOINTS` of joints ``X (J, 3)`` in the views with a depth map:
     ``z_v`` a joint's depth in camera ``v``, ``s`` = :data:`DEPTH_BEHIND_SURFACE`, ``d_v`` the median of the map's
     valid readings in the 5×5 pixels around the joint's projection (joints outside the image or without a
     reading are left out)."""
     idx = [model.joint_names.index(n) for n in DEPTH_JOINTS if n in model.joint_names]
-    uv, z = (
-        np.asarray(a, np.float64) for a in camera.project_with_depth(rig, jnp.asarray(X[idx], jnp.float32))
-    )
+    uv, z = (np.asarray(a, np.float64) for a in _project_with_depth(rig, jnp.asarray(X[idx], jnp.float32)))
     out = []
     for v, d in enumerate(depth):
         if d is None:
@@ -192,19 +204,21 @@ def reprojection_fit(
     centre = np.asarray(camera.camera_centres(rig), np.float64)[0]
     trans = root_translation_dofs(model)
 
+    uv_j, w_j = jnp.asarray(uv, dtype), jnp.asarray(w, dtype)
+
     def fitted(x0):
         """``(state, cost, depth misfits)`` of a fit from ``x0`` (cost inf when it fails)."""
-        xf = np.asarray(ik.fit_pose_2d(model, rig, uv, w, jnp.asarray(x0, dtype)), np.float64)
-        if not np.all(np.isfinite(xf)):
+        xf, X, cost = (
+            np.asarray(a, np.float64) for a in _fit_from(model, rig, uv_j, w_j, jnp.asarray(x0, dtype))
+        )
+        if not (np.all(np.isfinite(xf)) and np.isfinite(cost)):
             return xf, np.inf, np.zeros(0)
-        X = np.asarray(ik.model_joints(model, jnp.asarray(xf, dtype)), np.float64)
-        r = np.asarray(camera.project(rig, jnp.asarray(X, jnp.float32))) - np.nan_to_num(uv)
         dz = _depth_misfits(model, rig, X, depth) if depth is not None else np.zeros(0)
-        return xf, float(np.sum(w * np.sum(r**2, axis=-1)) + np.sum((dz / DEPTH_SIGMA) ** 2)), dz
+        return xf, float(cost + np.sum((dz / DEPTH_SIGMA) ** 2)), dz
 
     def along_ray(x0, factor):
         x0 = x0.copy()
-        X0 = np.asarray(ik.model_joints(model, jnp.asarray(x0, dtype)), np.float64)[0]
+        X0 = np.asarray(_joints(model, jnp.asarray(x0, dtype)), np.float64)[0]
         x0[trans] += (factor - 1.0) * (X0 - centre)
         return x0
 
@@ -216,7 +230,7 @@ def reprojection_fit(
                 best, best_cost, best_dz = xf, cost, dz
     if best_dz.size and len(trans) == 3:
         # the depth readings' median misfit, taken out along the ray, and fitted once more
-        root = np.asarray(ik.model_joints(model, jnp.asarray(best, dtype)), np.float64)[0]
+        root = np.asarray(_joints(model, jnp.asarray(best, dtype)), np.float64)[0]
         dist = float(np.linalg.norm(root - centre))
         xf, cost, _ = fitted(along_ray(best, 1.0 - float(np.median(best_dz)) / max(dist, 1e-6)))
         if cost < best_cost:
