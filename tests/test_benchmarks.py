@@ -195,12 +195,14 @@ def test_plate_source_is_what_a_recording_gives(tmp_path):
     keypoints are the simulated detections in the evaluation layout (each confident one within 10 px of the
     ground-truth joint projected by OpenCV), and it reads no rendered mask: with the mask files deleted every
     frame still reads. The oracle input reads the sequence as written."""
-    import cv2
     import numpy as np
     import scenes
 
     from jaxmocap.io.sources import SequenceSource
     from jaxmocap.synth import generate as synth
+
+    sys.path.insert(0, str(pathlib.Path(__file__).parent / "fit"))
+    from test_ik import _opencv_pixels  # the joints projected by cv2.projectPoints
 
     seq = tmp_path / "seq"
     synth.synthesize("demo", seq, rig="stereo", frames="150:162", size=(160, 120), seed=0)
@@ -213,18 +215,11 @@ def test_plate_source_is_what_a_recording_gives(tmp_path):
         for v in range(2):
             m, r = fd.masks[v], truth.masks[v] > 0
             assert np.logical_and(m, r).sum() / np.logical_or(m, r).sum() >= 0.9
-            rig = src.rig
-            uv, _ = cv2.projectPoints(
-                np.asarray(src.groundtruth[t], np.float64).reshape(-1, 1, 3),
-                cv2.Rodrigues(np.asarray(rig.R[v], np.float64))[0],
-                np.asarray(rig.t[v], np.float64),
-                np.asarray(rig.K[v], np.float64),
-                np.asarray(rig.dist[v], np.float64),
-            )
+            uv = _opencv_pixels(src.rig, src.groundtruth[t])[v]
             kp = fd.keypoints[v]
             seen = kp[:, 2] > 0
             assert seen.sum() >= 10
-            assert np.linalg.norm(kp[seen, :2] - uv.reshape(-1, 2)[seen], axis=-1).max() < 10
+            assert np.linalg.norm(kp[seen, :2] - uv[seen], axis=-1).max() < 10
     for p in seq.glob("views/*/mask/*.png"):
         p.unlink()
     assert all(len(src.read(t).masks) == 2 for t in range(3))

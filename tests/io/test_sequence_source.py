@@ -5,9 +5,10 @@ References: the OpenPose JSON files themselves, read with :mod:`json`, and the g
 ``cv2.projectPoints``."""
 
 import json
+import pathlib
 import shutil
+import sys
 
-import cv2
 import numpy as np
 import pytest
 
@@ -15,6 +16,9 @@ from jaxmocap.geometry.body import EVAL_JOINTS
 from jaxmocap.io.keypoints import LAYOUTS
 from jaxmocap.io.sources import DETECTIONS, SequenceSource
 from jaxmocap.synth import generate as synth
+
+sys.path.insert(0, str(pathlib.Path(__file__).parents[1] / "fit"))
+from test_ik import _opencv_pixels  # noqa: E402  (the joints projected by cv2.projectPoints)
 
 #: BODY_25B keypoint of a few evaluation joints
 B25B = {"left_wrist": "LWrist", "right_knee": "RKnee", "left_ankle": "LAnkle", "right_shoulder": "RShoulder"}
@@ -48,17 +52,11 @@ def test_detections_are_read_from_the_views_folders(seq):
                 if want[2] > 0:
                     np.testing.assert_allclose(got, want, atol=1e-3, err_msg=(t, view, joint))
             # and where the confident ones lie: near the true joints as OpenCV projects them
-            uv, _ = cv2.projectPoints(
-                np.asarray(src.groundtruth[t], np.float64).reshape(-1, 1, 3),
-                cv2.Rodrigues(np.asarray(rig.R[v], np.float64))[0],
-                np.asarray(rig.t[v], np.float64),
-                np.asarray(rig.K[v], np.float64),
-                np.asarray(rig.dist[v], np.float64),
-            )
+            uv = _opencv_pixels(rig, src.groundtruth[t])[v]
             kp = fd.keypoints[v]
             seen = kp[:, 2] > 0
             assert seen.sum() >= 10
-            assert np.linalg.norm(kp[seen, :2] - uv.reshape(-1, 2)[seen], axis=-1).max() < 10
+            assert np.linalg.norm(kp[seen, :2] - uv[seen], axis=-1).max() < 10
 
 
 def test_recording_hides_masks_and_ground_truth(seq):
