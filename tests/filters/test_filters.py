@@ -88,11 +88,11 @@ def loglik_level(X, obs, layer):
     return _kill(_gauss(X, obs.z, GROUPS[layer.partition]), obs, layer.partition)
 
 
-#: XLA's default backend optimisation level (the suite compiles at 0, tests/conftest.py), for the steps below: the
+#: XLA's default code generation (the suite compiles for compile time, tests/conftest.py), for the steps below: the
 #: Kalman comparisons run them hundreds of times on thousands of particles (their time is run time, ≈ 10 × longer
 #: at level 0), and the bit-for-bit equality of two differently structured programs is a property of the code
 #: generation users run
-PRODUCTION = {"xla_backend_optimization_level": 3}
+PRODUCTION = {"xla_backend_optimization_level": 3, "xla_cpu_use_fusion_emitters": True}
 STEPS = {
     cls: jax.jit(cls.step, compiler_options=PRODUCTION) for cls in (SIR, ICondensation, APF, Partitioned)
 }
