@@ -224,6 +224,11 @@ def test_silhouette_divergence_matches_numpy_eq_4_6(divergence_scene, samples):
         assert 0.1 < e_ref < 0.9
         assert abs(E[v] - e_ref) <= 1.0 / total_w + 1e-6  # at most one sample (weight ≤ 1) on the boundary
     ctx = lik._context(0)
+    assert cues._grid_rays(rig, np.zeros((3, 2), np.float32)).shape == (
+        2,
+        3,
+        2,
+    )  # a concrete rig: the host table
     host = cues._prepare_divergence(obs, ctx, {})
     traced = jax.jit(lambda r: cues._prepare_divergence(obs, ctx._replace(rig=r), {}))(rig)
     for k in ("x", "y", "w"):
