@@ -16,12 +16,21 @@ projection, facing test, nearest-pixel lookups and cue energies, vectorised over
 cost is linear in them). ``--per-cue`` times each IROS 2007 cue alone, with the geometry it needs. ``--sweep``
 times the first two configurations at 10², 10³, 10⁴ and 10⁵ particles, each against NumPy.
 
+``--divergence`` times the foreground divergence (López Méndez eq. 4.6) side by side, before and after its
+undistorted sample grid became a host-side table (:func:`jaxmocap.likelihood.cues._grid_rays`): the
+``lopez-mendez`` preset's likelihood (``upper9``, all five cues) at 200 particles, with the samples undistorted in
+the compiled program as before (the path a traced rig takes) and read from the table, and without the divergence;
+interleaved rounds (each the median of ``--repeats`` calls), the median before/after ratio, the load average, and
+the largest difference of the two log-likelihoods.
+
     .venv/bin/python benchmarks/perf/bench_likelihood.py [--particles 8192] [--repeats 7] [--per-cue] [--sweep] [--quick]
+    .venv/bin/python benchmarks/perf/bench_likelihood.py --configs --divergence [--rounds 15]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import pathlib
 import sys
@@ -90,6 +99,75 @@ def per_cue(config: str, n: int, repeats: int, rng) -> list[tuple[str, float]]:
     return out
 
 
+def divergence_side_by_side(n: int, rounds: int, repeats: int, rng) -> dict:
+    """Median seconds per ``Likelihood.batch`` call of the ``lopez-mendez`` preset's cues at ``n`` particles:
+    ``before`` (the divergence's samples undistorted in the compiled program), ``after`` (read from the host
+    table), ``without`` (the preset's cues without the divergence), and the same for the divergence alone;
+    interleaved rounds. Returns name → ``(rounds,)`` medians, ``diff`` (largest |Δ log-likelihood|, before
+    against after) and the load averages."""
+    from unittest import mock
+
+    from scenes import observation, stereo_rig
+
+    from jaxmocap.geometry import body
+    from jaxmocap.likelihood import cues
+    from jaxmocap.tracking.presets.lopez_mendez import ALL_CUES, CLASSIC_CUES
+
+    model, rig = body.upper9(), stereo_rig()
+    obs = observation(rig, rng)
+    X = jnp.asarray(particles(model, n, rng))
+
+    def compiled(names: str, traced_grid: bool):
+        lik = L.Likelihood.create(model, rig, [L.Cue(c) for c in names.split(",")], num_layers=3)
+        f = jax.jit(lambda X, o: lik.batch(X, o, 0))
+        traced = mock.patch.object(cues, "_grid_rays", lambda rig, grid: None)
+        with traced if traced_grid else contextlib.nullcontext():
+            f(X, obs).block_until_ready()  # compiled here, with or without the host table
+        return f
+
+    fns = {
+        "before": compiled(ALL_CUES, True),
+        "after": compiled(ALL_CUES, False),
+        "without": compiled(CLASSIC_CUES, False),
+        "alone before": compiled("silhouette_divergence", True),
+        "alone after": compiled("silhouette_divergence", False),
+    }
+    diff = float(jnp.max(jnp.abs(fns["before"](X, obs) - fns["after"](X, obs))))
+    load0 = os.getloadavg()[0]
+    times = {k: [] for k in fns}
+    for _ in range(rounds):
+        for k, f in fns.items():
+            times[k].append(common.median_seconds(lambda f=f: f(X, obs).block_until_ready(), repeats))
+    return {
+        **{k: np.asarray(v) for k, v in times.items()},
+        "diff": diff,
+        "load": (load0, os.getloadavg()[0]),
+    }
+
+
+def print_divergence(n: int, rounds: int, repeats: int, rng) -> None:
+    r = divergence_side_by_side(n, rounds, repeats, rng)
+    print(
+        f"\nForeground divergence before/after the host-side sample grid: lopez-mendez cues, upper9, {n} particles, "
+        f"{rounds} interleaved rounds of {repeats} calls, load average {r['load'][0]:.1f} -> {r['load'][1]:.1f}"
+    )
+    print(
+        "| likelihood | before ms | after ms | before / after (median of the rounds' ratios) |\n|---|---|---|---|"
+    )
+    for label, b, a in (
+        ("all five cues", "before", "after"),
+        ("divergence alone", "alone before", "alone after"),
+    ):
+        ratio = np.median(r[b] / r[a])
+        print(f"| {label} | {np.median(r[b]) * 1e3:.2f} | {np.median(r[a]) * 1e3:.2f} | {ratio:.2f}× |")
+    w = np.median(r["without"])
+    print(
+        f"| without the divergence | | {w * 1e3:.2f} | divergence's share after: "
+        f"{np.median(r['after'] / r['without']):.2f}× the four cues |"
+    )
+    print(f"largest |log-likelihood before − after|: {r['diff']:.2e}")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--particles", type=int, default=8192)
@@ -112,6 +190,12 @@ def main(argv=None):
         action="store_true",
         help="also time each cue of upper14-iros alone (where its time goes)",
     )
+    ap.add_argument(
+        "--divergence",
+        action="store_true",
+        help="also time the divergence cue before/after its host-side sample grid (lopez-mendez cues, 200 particles)",
+    )
+    ap.add_argument("--rounds", type=int, default=15, help="interleaved rounds of --divergence")
     a = ap.parse_args(argv)
     if a.quick:
         a.particles, a.repeats, a.numpy_repeats = 1024, 3, 1
@@ -150,6 +234,8 @@ def main(argv=None):
         print("| cue | median ms | particles/s |\n|---|---|---|")
         for name, sec in per_cue("upper14-iros", a.particles, a.repeats, rng):
             print(f"| {name} | {sec * 1e3:.1f} | {a.particles / sec:,.0f} |", flush=True)
+    if a.divergence:
+        print_divergence(200, a.rounds, a.repeats, rng)
     print(f"load average after: {os.getloadavg()[0]:.2f}")
 
 

@@ -142,20 +142,50 @@ def depth(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
     return jnp.minimum(mean, DEPTH_PENALTY_M) / DEPTH_PENALTY_M
 
 
+#: Undistorted grids of the divergence cue (:func:`_grid_rays`), by calibration and grid: a few rigs at a time.
+_GRID_RAYS: dict = {}
+
+
+def _grid_rays(rig, grid: np.ndarray) -> np.ndarray | None:
+    """``(V, G, 2)`` undistorted normalised camera coordinates of the pixel ``grid (G, 2)`` in every view of
+    ``rig``, computed on the host once per calibration (:func:`jaxmocap.geometry.camera.undistort_points`, as
+    the traced path computes them), or None when the calibration is traced (a rig passed into ``jit`` as data)."""
+    try:
+        key = (np.asarray(rig.K).tobytes(), np.asarray(rig.dist).tobytes(), grid.tobytes())
+    except jax.errors.TracerArrayConversionError:
+        return None
+    if key not in _GRID_RAYS:
+        if len(_GRID_RAYS) >= 8:
+            _GRID_RAYS.pop(next(iter(_GRID_RAYS)))
+        V = np.asarray(rig.K).shape[0]
+        with jax.ensure_compile_time_eval():
+            ab = camera.undistort_points(
+                rig, jnp.broadcast_to(jnp.asarray(grid)[:, None], (grid.shape[0], V, 2))
+            )
+        _GRID_RAYS[key] = np.ascontiguousarray(np.moveaxis(np.asarray(ab, np.float32), 1, 0))
+    return _GRID_RAYS[key]
+
+
 def _prepare_divergence(obs: Observation, ctx: CueContext, cache: dict):
     """Foreground samples of the divergence cue, once per frame: the foreground value at a ``grid`` (columns,
     rows; default 80×60) of pixels, compacted to ``samples`` (default 256) slots per view — every foreground grid
     pixel once when there are at most that many (unused slots weigh 0), otherwise every (count/samples)-th in
-    raster order (an evenly spread subsample) — with their weights and undistorted normalised camera coordinates."""
+    raster order (an evenly spread subsample) — with their weights and undistorted normalised camera coordinates.
+
+    The grid is fixed, so its undistorted coordinates depend on the calibration only: they are computed once on
+    the host (:func:`_grid_rays`) and the frame's samples gather theirs from that table — the same numbers as
+    undistorting the picked pixels in the compiled program (which cost more than the rest of the cue: the
+    iteration of the distortion model compiles into a slow fused loop on a CPU), done there only when the rig is
+    traced. The grid values are read by indexing the map at the grid's rows and columns (nearest pixel: the
+    grid points are pixel centres inside the image)."""
     V, H, W = obs.foreground.shape
     gc, gr = ctx.params.get("grid", (80, 60))
     M = int(ctx.params.get("samples", 256))
-    us = np.floor((np.arange(gc) + 0.5) * (W / gc))  # pixel centres, evenly spread
-    vs = np.floor((np.arange(gr) + 0.5) * (H / gr))
+    us = np.floor((np.arange(gc) + 0.5) * (W / gc)).astype(np.int32)  # pixel centres, evenly spread
+    vs = np.floor((np.arange(gr) + 0.5) * (H / gr)).astype(np.int32)
     grid = np.stack(np.meshgrid(us, vs), -1).reshape(-1, 2).astype(np.float32)
     G = grid.shape[0]
-    uvg = jnp.broadcast_to(jnp.asarray(grid), (V, G, 2))
-    F, _ = maps.lookup_nearest(obs.foreground, uvg)
+    F = obs.foreground[:, vs[:, None], us[None, :]].reshape(V, G).astype(jnp.float32)
     F = F * _unit_scale(obs.foreground)
     fg = F > 0
     count = jnp.cumsum(fg.astype(jnp.int32), axis=-1)  # (V, G)
@@ -166,10 +196,12 @@ def _prepare_divergence(obs: Observation, ctx: CueContext, cache: dict):
     pick = jax.vmap(lambda c, r: jnp.searchsorted(c, r + 1, side="left"))(count, rank)  # the (rank+1)-th
     pick = jnp.clip(pick, 0, G - 1)
     w = jnp.take_along_axis(F, pick, axis=-1) * (rank < total[:, None])
-    uv = jnp.asarray(grid)[pick]  # (V, M, 2)
-    rig = ctx.rig
-    ab = camera.undistort_points(rig, jnp.moveaxis(uv, 0, 1).astype(jnp.float32))  # (M, V, 2)
-    ab = jnp.moveaxis(ab, 1, 0)
+    rays = _grid_rays(ctx.rig, grid)
+    if rays is not None:
+        ab = jnp.take_along_axis(jnp.asarray(rays), pick[..., None], axis=1)  # (V, M, 2)
+    else:
+        uv = jnp.asarray(grid)[pick]  # (V, M, 2)
+        ab = jnp.moveaxis(camera.undistort_points(ctx.rig, jnp.moveaxis(uv, 0, 1)), 1, 0)
     return {"x": ab[..., 0], "y": ab[..., 1], "w": w}
 
 

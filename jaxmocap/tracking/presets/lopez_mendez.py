@@ -70,6 +70,16 @@ the scheme's cue set.
 Missing or different here: the thesis' cue weights and exact schedules (above); its dynamics (the tracker's random
 walk with the damped constant-velocity root, ``--velocity``); its initialisation (``--init``: ground truth when the
 input has it, else IK from detections); its capture at 9.5 frames/s (the tracker reads recorded frames).
+
+The thesis' own results, the values of its Tables 7.1 and 7.2, are not recorded in this project (no copy of them is
+at hand): ``benchmarks/experiments/lopez_mendez.py`` runs every scheme above and checks the thesis' claims on the
+numbers it measures (``benchmarks/results/lopez_mendez.md``), never against the thesis' figures.
+
+Speed: the divergence (4.6) tests each of its foreground samples (at most 256 per view, the cue's ``samples``
+parameter) against every primitive's projected silhouette, per particle and layer; the samples' undistorted
+coordinates are read from a table of the sample grid computed once per calibration
+(:func:`jaxmocap.likelihood.cues._prepare_divergence`). ``benchmarks/results/lopez_mendez.md`` gives the frames/s
+of every scheme.
 """
 
 from jaxmocap.tracking.presets.base import Preset
