@@ -266,6 +266,13 @@ SCRIPTS: dict[str, Script] = {
         writes=("iros2007.md",),
         slow=True,
     ),
+    "iros2007_ablation": Script(
+        "IROS 2007 in clutter: the head found with and without the stereo gate, and the five-cue ablation",
+        "experiments/iros2007.py",
+        "--ablation --runs 3 --frames 20",
+        writes=("iros2007_ablation.md",),
+        slow=True,
+    ),
     "determinism": Script(
         "One seed tracked twice over 1500 frames in one process: identical poses",
         "experiments/determinism.py",

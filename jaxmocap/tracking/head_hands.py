@@ -2,10 +2,18 @@
 
 Per frame, on the full-size images of a calibrated pair (views ``(0, 1)``):
 
-1. skin probability of each view (:meth:`jaxmocap.features.skin.SkinModel.probability_u8`), its ``max_blobs``
-   largest skin regions (:func:`jaxmocap.features.blobs.skin_blobs`), matched across the pair under the epipolar
-   constraint and triangulated (:func:`jaxmocap.features.blobs.stereo_blobs`): candidate 3D blobs ``b_k`` with
-   their first-view centroids ``u_k``;
+1. candidate 3D skin blobs ``b_k`` with their first-view centroids ``u_k``. By default (``stereo_gate=True``)
+   from dense stereo (:class:`jaxmocap.features.disparity.StereoGate`): the pair rectified at half size, its
+   SGBM disparity turned into world points, and the first view's skin probability
+   (:meth:`jaxmocap.features.skin.SkinModel.probability_u8`) kept only where that point lies in the space a
+   person can occupy (step 2); its ``max_blobs`` largest regions (:func:`jaxmocap.features.blobs.skin_blobs`),
+   each at the median disparity of its pixels. Skin-coloured clutter on the walls fails the gate whatever its
+   colour, and a face that touches such clutter in the image is cut from it, with no background model (the
+   cameras may move). Without the gate (``stereo_gate=False``): the ``max_blobs`` largest skin regions of each
+   view matched across the pair under the epipolar constraint and triangulated
+   (:func:`jaxmocap.features.blobs.stereo_blobs`), which in a cluttered room matches a face merged with clutter
+   to the wrong blob (``benchmarks/results/iros2007_ablation.md``: the head found in 0–7 % of the frames at
+   clutter medium and high);
 2. candidates outside the space a person can occupy are dropped: height ``z`` outside ``height_range`` (metres,
    world ``z`` up, floor at 0) or farther than ``max_range`` from the first camera (skin-coloured things on the
    walls);
@@ -29,6 +37,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import cv2
 import jax.numpy as jnp
 import numpy as np
 
@@ -102,7 +111,8 @@ class HeadHandsDetector:
     ``rig``: the calibration of the full-size ``images`` (BGR ``uint8``, one per view); ``views``: the stereo
     pair; ``skin_model`` / ``face_detector``: default the package's skin model and OpenCV's frontal-face
     cascade (``face=False``: no face detection, the head is the highest blob); ``min_area``: the smallest blob
-    in pixels (default 20 at 640×480, in proportion to the image area, at least 4)."""
+    in pixels (default 20 at 640×480, in proportion to the image area, at least 4); ``stereo_gate``: the blobs
+    from dense stereo at ``gate_scale`` of the full size (step 1), else matched across the pair."""
 
     def __init__(
         self,
@@ -119,6 +129,8 @@ class HeadHandsDetector:
         min_head_height: float = 1.0,
         reach: float = 1.2,
         hand_radius: float = 0.08,
+        stereo_gate: bool = True,
+        gate_scale: float = 0.5,
     ):
         from jaxmocap.features.skin import default_skin_model
 
@@ -140,13 +152,33 @@ class HeadHandsDetector:
         self.height_range, self.max_range = tuple(height_range), float(max_range)
         self.min_head_height, self.reach = float(min_head_height), float(reach)
         self.hand_radius = float(hand_radius)
+        self.gate = None
+        if stereo_gate:
+            from jaxmocap.features.disparity import StereoGate
+
+            self.gate = StereoGate(rig, self.views, gate_scale, self.max_range, self.height_range)
         self._centre = np.asarray(camera.camera_centres(rig.to_jax(jnp.float32)), np.float64)[self.views[0]]
 
     def candidates(self, images) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """``(points (K, 3), first-view centroids (K, 2), scores (K,), radii (K,))`` of the plausible matched blobs;
-        a score is the match's confidence times the blob's mean skin probability in the first view (a hand is skin
-        through and through; a noisy patch of clothing is skin in places); a radius, metres, is that of the disc
-        of the blob's first-view area at its depth, ``√(A/π) Z / f``."""
+        """``(points (K, 3), first-view centroids (K, 2), scores (K,), radii (K,))`` of the plausible blobs; a
+        score is the blob's mean skin probability in the first view (a hand is skin through and through; a noisy
+        patch of clothing is skin in places), times the match's confidence without the stereo gate; a radius,
+        metres, is that of the disc of the blob's first-view area at its depth, ``√(A/π) Z / f``.
+
+        With the stereo gate (``stereo_gate=True``, :class:`jaxmocap.features.disparity.StereoGate`) the blobs
+        are those of the first view's skin probability where the dense disparity puts a pixel in the space a
+        person can occupy, each at the median disparity of its gated pixels (no blob matching across views);
+        without it, the blobs of both views matched under the epipolar constraint and triangulated."""
+        if self.gate is not None:
+            pts, uv, score, radius = self._gated_blobs(images)
+        else:
+            pts, uv, score, radius = self._matched_blobs(images)
+        lo, hi = self.height_range
+        ok = (pts[:, 2] >= lo) & (pts[:, 2] <= hi)
+        ok &= np.linalg.norm(pts - self._centre, axis=1) <= self.max_range
+        return pts[ok], uv[ok], score[ok], radius[ok]
+
+    def _matched_blobs(self, images):
         i, j = self.views
         prob = [self.skin_model.probability_u8(images[v]) for v in (i, j)]
         blobs = [
@@ -160,18 +192,39 @@ class HeadHandsDetector:
         pts, conf = pts[:n], conf[:n]
         first = [m.i for m in matches]
         uv = blobs[0].centroids[first].reshape(-1, 2)
-        lab = blobs[0].labels.ravel()
-        sums = np.bincount(lab, prob[0].ravel().astype(np.float64), minlength=self.max_blobs + 1)
-        counts = np.bincount(lab, minlength=self.max_blobs + 1)
-        skinness = sums[1:] / np.maximum(counts[1:], 1) / 255.0
+        skinness = _mean_by_label(blobs[0].labels, prob[0], self.max_blobs)
         score = conf * skinness[first] if n else conf
         R, t, K = (np.asarray(a[i], np.float64) for a in (self.rig.R, self.rig.t, self.rig.K))
         depth = pts @ R[2] + t[2]
         radius = np.sqrt(blobs[0].areas[first] / np.pi) * depth / K[0, 0] if n else conf
-        lo, hi = self.height_range
-        ok = (pts[:, 2] >= lo) & (pts[:, 2] <= hi)
-        ok &= np.linalg.norm(pts - self._centre, axis=1) <= self.max_range
-        return pts[ok], uv[ok], score[ok], radius[ok]
+        return pts, uv, score, radius
+
+    def _gated_blobs(self, images):
+        g = self.gate
+        frame = g(images, self.views)
+        prob = self.skin_model.probability_u8(frame.image)
+        prob = np.where(frame.ok, prob, np.uint8(0))
+        scale = g.size[0] / self.rig.image_size[self.views[0]][0]
+        min_area = max(4, round(self.min_area * scale * scale))
+        b = skin_blobs(prob, self.threshold, self.max_blobs, min_area, with_labels=True)
+        n = len(b.areas)
+        lab = b.labels
+        disp = np.array(
+            [np.nanmedian(frame.disparity[(lab == k + 1) & frame.ok]) for k in range(n)], np.float64
+        )
+        pts = g.to_world(np.column_stack([b.centroids, disp])).reshape(-1, 3)
+        score = _mean_by_label(lab, prob, self.max_blobs)[:n]
+        i = self.views[0]
+        R, t, K, d = (
+            np.asarray(a[i], np.float64) for a in (self.rig.R, self.rig.t, self.rig.K, self.rig.dist)
+        )
+        if n:
+            uv = cv2.projectPoints(pts, cv2.Rodrigues(R)[0], t, K, d)[0].reshape(-1, 2)
+        else:
+            uv = np.zeros((0, 2))
+        depth = pts @ R[2] + t[2]
+        radius = np.sqrt(b.areas / np.pi) * depth / g.P1[0, 0]
+        return pts, uv, score, radius
 
     def faces_near(self, image: np.ndarray, uv: np.ndarray, half: int = 48) -> np.ndarray:
         """Face boxes ``(F, 4)`` found in windows of ``2·half`` pixels around the centroids ``uv (K, 2)`` (a face
@@ -213,6 +266,15 @@ class HeadHandsDetector:
             hands[side] = pts[rest[0]]
             weights[1 + side] = 1.0
         return HeadHands(head, hands[0], hands[1], weights, how)
+
+
+def _mean_by_label(labels: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    """Mean of ``values (H, W)`` (``uint8``, read as ``/255``) over each label ``1 … n`` of ``labels (H, W)``:
+    ``(n,)``."""
+    lab = labels.ravel()
+    sums = np.bincount(lab, values.ravel().astype(np.float64), minlength=n + 1)
+    counts = np.bincount(lab, minlength=n + 1)
+    return sums[1:] / np.maximum(counts[1:], 1) / 255.0
 
 
 def head_hands_pose(model, det: HeadHands, reference: np.ndarray | None = None) -> np.ndarray | None:
