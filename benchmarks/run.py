@@ -269,7 +269,7 @@ SCRIPTS: dict[str, Script] = {
     "iros2007_ablation": Script(
         "IROS 2007 in clutter: the head found with and without the stereo gate, and the five-cue ablation",
         "experiments/iros2007.py",
-        "--ablation --runs 3 --frames 20",
+        "--ablation --runs 2 --frames 20",
         writes=("iros2007_ablation.md",),
         slow=True,
     ),

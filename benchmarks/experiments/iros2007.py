@@ -36,7 +36,7 @@ runs of the run's mean 3D error, per clutter level.
 Usage::
 
     python benchmarks/experiments/iros2007.py --runs 15 --frames 24   # writes benchmarks/results/iros2007.md
-    python benchmarks/experiments/iros2007.py --ablation --runs 3 --frames 20  # writes results/iros2007_ablation.md
+    python benchmarks/experiments/iros2007.py --ablation --runs 2 --frames 20  # writes results/iros2007_ablation.md
     python benchmarks/experiments/iros2007.py --quick          # 1 sequence, 1 run, 6 frames; writes nothing
 """
 

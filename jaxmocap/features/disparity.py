@@ -84,6 +84,28 @@ class StereoGate:
             Xc = Xr @ self.R1  # R1ᵀ x for row vectors
             return (Xc - self.t0) @ self.R0
 
+    def agrees(self, frame: StereoFrame, points: np.ndarray, tol: float = 2.0, half: int = 2) -> np.ndarray:
+        """``(K,)`` bool: whether each world point ``points (K, 3)`` lies where ``frame``'s dense stereo puts the
+        scene: its own disparity in the rectified pair, ``f B / Z_r``, within ``tol`` pixels (at the gate's size)
+        of the median valid disparity in the ``(2·half + 1)²`` window around its rectified pixel (False where the
+        window has none, or the point is outside the image or behind the cameras)."""
+        X = np.asarray(points, np.float64).reshape(-1, 3)
+        Xr = (X @ self.R0.T + self.t0) @ self.R1.T
+        out = np.zeros(len(X), bool)
+        w, h = self.size
+        baseline_f = self.Q[2, 3] / self.Q[3, 2]  # f B: Q maps (u, v, d, 1) to (u - cx, v - cy, f, d / B)
+        for k, (x, y, z) in enumerate(Xr):
+            if z <= 0:
+                continue
+            u, v = self.P1[0, 0] * x / z + self.P1[0, 2], self.P1[1, 1] * y / z + self.P1[1, 2]
+            iu, iv = int(round(u)), int(round(v))
+            if not (0 <= iu < w and 0 <= iv < h):
+                continue
+            win = frame.disparity[max(iv - half, 0) : iv + half + 1, max(iu - half, 0) : iu + half + 1]
+            win = win[np.nan_to_num(win) > 0]
+            out[k] = win.size > 0 and abs(np.median(win) - baseline_f / z) <= tol
+        return out
+
     def __call__(self, images, views: tuple[int, int] = (0, 1)) -> StereoFrame:
         """The gate of one frame (``images[views[0]]``, ``images[views[1]]``)."""
         rect = [

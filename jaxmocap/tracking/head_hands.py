@@ -2,18 +2,20 @@
 
 Per frame, on the full-size images of a calibrated pair (views ``(0, 1)``):
 
-1. candidate 3D skin blobs ``b_k`` with their first-view centroids ``u_k``. By default (``stereo_gate=True``)
-   from dense stereo (:class:`jaxmocap.features.disparity.StereoGate`): the pair rectified at half size, its
-   SGBM disparity turned into world points, and the first view's skin probability
-   (:meth:`jaxmocap.features.skin.SkinModel.probability_u8`) kept only where that point lies in the space a
-   person can occupy (step 2); its ``max_blobs`` largest regions (:func:`jaxmocap.features.blobs.skin_blobs`),
-   each at the median disparity of its pixels. Skin-coloured clutter on the walls fails the gate whatever its
-   colour, and a face that touches such clutter in the image is cut from it, with no background model (the
-   cameras may move). Without the gate (``stereo_gate=False``): the ``max_blobs`` largest skin regions of each
-   view matched across the pair under the epipolar constraint and triangulated
-   (:func:`jaxmocap.features.blobs.stereo_blobs`), which in a cluttered room matches a face merged with clutter
-   to the wrong blob (``benchmarks/results/iros2007_ablation.md``: the head found in 0–7 % of the frames at
-   clutter medium and high);
+1. candidate 3D skin blobs ``b_k`` with their first-view centroids ``u_k``: the ``max_blobs`` largest skin regions
+   (:meth:`jaxmocap.features.skin.SkinModel.probability_u8`, :func:`jaxmocap.features.blobs.skin_blobs`) of each
+   view, matched across the pair under the epipolar constraint and triangulated
+   (:func:`jaxmocap.features.blobs.stereo_blobs`). With the stereo gate (``stereo_gate=True``, the default;
+   :class:`jaxmocap.features.disparity.StereoGate`: the pair rectified at half size, its SGBM disparity turned
+   into world points) a matched blob is kept only where the dense disparity agrees with its own (within
+   ``max_disparity_error`` pixels at half size): in a cluttered room a face merged with skin-coloured clutter is
+   matched to the wrong blob, metres off. When no kept blob can be a head (none as high as ``min_head_height``),
+   the candidates are instead the skin regions of the first view where the dense stereo puts a pixel in the space
+   a person can occupy (step 2), each at the median disparity of its pixels moved ``surface_offset`` × its radius
+   along the viewing ray (the disparity is that of the visible surface; a head's centre lies about a radius
+   behind it). Skin-coloured clutter on the walls fails that gate whatever its colour, and a face that touches
+   such clutter in the image is cut from it, with no background model (the cameras may move); on a plain
+   backdrop the matched blobs all agree and the result is that of the matching alone;
 2. candidates outside the space a person can occupy are dropped: height ``z`` outside ``height_range`` (metres,
    world ``z`` up, floor at 0) or farther than ``max_range`` from the first camera (skin-coloured things on the
    walls);
@@ -22,8 +24,8 @@ Per frame, on the full-size images of a calibrated pair (views ``(0, 1)``):
    found, or none over a blob — the highest candidate whose height is at least ``min_head_height``;
 4. the hands: the two other candidates within ``reach`` of the head with the best scores (match confidence ×
    mean skin probability of the blob) whose size is a hand's (the disc of the blob's area at its depth has a
-   radius of at most ``hand_radius``, 8 cm); a missing hand gets weight 0
-   in the IK;
+   radius of at most ``hand_radius``, 8 cm); of two such candidates closer than ``min_hand_gap`` (0.25 m: a hand
+   and its own wrist or forearm) only the better is kept; a missing hand gets weight 0 in the IK;
 5. left / right (:func:`assign_hands`): the assignment nearest to the wrists of a reference pose (the last good
    estimate) when there is one, else the person faces the first camera, so that the person's left hand is on the
    camera's right (larger ``x`` in its frame);
@@ -111,8 +113,9 @@ class HeadHandsDetector:
     ``rig``: the calibration of the full-size ``images`` (BGR ``uint8``, one per view); ``views``: the stereo
     pair; ``skin_model`` / ``face_detector``: default the package's skin model and OpenCV's frontal-face
     cascade (``face=False``: no face detection, the head is the highest blob); ``min_area``: the smallest blob
-    in pixels (default 20 at 640×480, in proportion to the image area, at least 4); ``stereo_gate``: the blobs
-    from dense stereo at ``gate_scale`` of the full size (step 1), else matched across the pair."""
+    in pixels (default 20 at 640×480, in proportion to the image area, at least 4); ``stereo_gate``: the matched
+    blobs checked against dense stereo at ``gate_scale`` of the full size, and the gated blobs when none is left
+    that can be a head (step 1; ``max_disparity_error``, ``surface_offset``); ``min_hand_gap``: step 4."""
 
     def __init__(
         self,
@@ -131,6 +134,9 @@ class HeadHandsDetector:
         hand_radius: float = 0.08,
         stereo_gate: bool = True,
         gate_scale: float = 0.5,
+        surface_offset: float = 1.0,
+        min_hand_gap: float = 0.25,
+        max_disparity_error: float = 2.0,
     ):
         from jaxmocap.features.skin import default_skin_model
 
@@ -152,7 +158,8 @@ class HeadHandsDetector:
         self.height_range, self.max_range = tuple(height_range), float(max_range)
         self.min_head_height, self.reach = float(min_head_height), float(reach)
         self.hand_radius = float(hand_radius)
-        self.gate = None
+        self.gate, self.surface_offset = None, float(surface_offset)
+        self.min_hand_gap, self.max_disparity_error = float(min_hand_gap), float(max_disparity_error)
         if stereo_gate:
             from jaxmocap.features.disparity import StereoGate
 
@@ -169,10 +176,17 @@ class HeadHandsDetector:
         are those of the first view's skin probability where the dense disparity puts a pixel in the space a
         person can occupy, each at the median disparity of its gated pixels (no blob matching across views);
         without it, the blobs of both views matched under the epipolar constraint and triangulated."""
-        if self.gate is not None:
-            pts, uv, score, radius = self._gated_blobs(images)
-        else:
-            pts, uv, score, radius = self._matched_blobs(images)
+        matched = self._plausible(*self._matched_blobs(images))
+        if self.gate is None:
+            return matched
+        frame = self.gate(images, self.views)
+        keep = self.gate.agrees(frame, matched[0], self.max_disparity_error)
+        matched = tuple(a[keep] for a in matched)
+        if np.any(matched[0][:, 2] >= self.min_head_height):
+            return matched
+        return self._plausible(*self._gated_blobs(frame))
+
+    def _plausible(self, pts, uv, score, radius):
         lo, hi = self.height_range
         ok = (pts[:, 2] >= lo) & (pts[:, 2] <= hi)
         ok &= np.linalg.norm(pts - self._centre, axis=1) <= self.max_range
@@ -199,9 +213,8 @@ class HeadHandsDetector:
         radius = np.sqrt(blobs[0].areas[first] / np.pi) * depth / K[0, 0] if n else conf
         return pts, uv, score, radius
 
-    def _gated_blobs(self, images):
+    def _gated_blobs(self, frame):
         g = self.gate
-        frame = g(images, self.views)
         prob = self.skin_model.probability_u8(frame.image)
         prob = np.where(frame.ok, prob, np.uint8(0))
         scale = g.size[0] / self.rig.image_size[self.views[0]][0]
@@ -224,6 +237,9 @@ class HeadHandsDetector:
             uv = np.zeros((0, 2))
         depth = pts @ R[2] + t[2]
         radius = np.sqrt(b.areas / np.pi) * depth / g.P1[0, 0]
+        # the disparity is the visible surface's; a head or a fist is round: its centre lies a radius behind
+        ray = pts - self._centre
+        pts = pts + self.surface_offset * radius[:, None] * ray / np.linalg.norm(ray, axis=1, keepdims=True)
         return pts, uv, score, radius
 
     def faces_near(self, image: np.ndarray, uv: np.ndarray, half: int = 48) -> np.ndarray:
@@ -255,6 +271,8 @@ class HeadHandsDetector:
             m for m in rest if np.linalg.norm(pts[m] - head) <= self.reach and radius[m] <= self.hand_radius
         ]
         rest = rest[:2]
+        if len(rest) == 2 and np.linalg.norm(pts[rest[0]] - pts[rest[1]]) < self.min_hand_gap:
+            rest = rest[:1]  # two pieces of one arm (a hand and its wrist or forearm), not two hands
         hands = np.repeat(head[None], 2, axis=0)
         weights = np.array([1.0, 0.0, 0.0])
         if len(rest) == 2:

@@ -249,6 +249,10 @@ def test_stereo_gate_puts_points_on_the_plane_and_keeps_those_in_range_and_heigh
     assert 0.2 < inside[valid].mean() < 0.8  # the gate cuts the plane (measured: 0.36 inside)
     # measured: the gate agrees with the true points on 0.99 of the valid pixels
     assert np.mean(fr.ok[valid] == inside[valid]) > 0.95
+    # a point on the plane agrees with the dense disparity; the same point 0.5 m nearer the camera does not
+    Xp = X[120, 200]
+    towards = Xp + 0.5 * (C - Xp) / np.linalg.norm(C - Xp)
+    assert gate.agrees(fr, np.stack([Xp, towards])).tolist() == [True, False]
     with pytest.raises(ValueError, match="right of the first"):
         StereoGate(rig, (1, 0))
 
