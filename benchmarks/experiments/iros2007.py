@@ -33,10 +33,17 @@ first view (the ground truth is read by this script only). Then the cue ablation
 cues and with each left out in turn (realistic input as above, seeds 0 … R−1 for every set), mean ± std over the
 runs of the run's mean 3D error, per clutter level.
 
+``--speed`` (writes ``benchmarks/results/iros2007_speed.md``): frames/s of the preset end to end (the tracker's
+rate after the first frame) with the features at 640x480 (``--downsample 1``) and at 160x120, on 02_01 walk in the
+room at clutter medium, and the median time per frame of its stages measured apart: reading the frame (PNG
+decoding), the feature maps (:class:`jaxmocap.tracking.features.FeatureBuilder`), the head-and-hands detection (its
+OpenCV part) and its IK; the filter's share is the rest of the frame's time.
+
 Usage::
 
     python benchmarks/experiments/iros2007.py --runs 15 --frames 24   # writes benchmarks/results/iros2007.md
     python benchmarks/experiments/iros2007.py --ablation --runs 2 --frames 20  # writes results/iros2007_ablation.md
+    python benchmarks/experiments/iros2007.py --speed --frames 20   # writes results/iros2007_speed.md
     python benchmarks/experiments/iros2007.py --quick          # 1 sequence, 1 run, 6 frames; writes nothing
 """
 
@@ -56,6 +63,7 @@ import numpy as np
 
 RESULTS = common.RESULTS / "iros2007.md"
 ABLATION = common.RESULTS / "iros2007_ablation.md"
+SPEED = common.RESULTS / "iros2007_speed.md"
 CLUTTER = ("none", "medium", "high")
 HEAD_PX = 15.0  # about the radius of the rendered head at 3 m in the 640x480 view
 CMU = (
@@ -121,7 +129,7 @@ def track(source, out: pathlib.Path, seed: int, options: dict) -> dict:
     from jaxmocap.tracking.tracker import Tracker
 
     o = TrackOptions.from_preset(
-        "iros2007", downsample=4, seed=seed, smooth="none", overwrite=True, **options
+        "iros2007", **{"downsample": 4, "seed": seed, "smooth": "none", "overwrite": True, **options}
     )
     summary = Tracker(source, out, o, quiet=True).run()
     poses = export.load_poses(out)
@@ -146,6 +154,7 @@ def main(argv=None) -> str:
     p.add_argument("--frames", type=int, default=24)
     p.add_argument("--quick", action="store_true")
     p.add_argument("--ablation", action="store_true", help="the head found and the cue ablation in clutter")
+    p.add_argument("--speed", action="store_true", help="frames/s at 640x480 and 160x120 features, by stage")
     args = p.parse_args(argv)
     import jax
 
@@ -156,6 +165,8 @@ def main(argv=None) -> str:
     runs, frames = (1, 6) if args.quick else (args.runs, args.frames)
     if args.ablation:
         return ablation(runs, frames, args.quick)
+    if args.speed:
+        return speed(frames, args.quick)
     t_start = time.time()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = pathlib.Path(tmp)
@@ -383,6 +394,79 @@ def ablation_report(found, err, levels, sets, names, runs, frames, wall, quick) 
         f"python benchmarks/experiments/iros2007.py --ablation --runs {runs} --frames {frames}",
         write=not quick,
     )
+
+
+def stage_times(root: pathlib.Path, downsample: int, frames: int) -> dict[str, float]:
+    """Median seconds per frame of the preset's stages on the sequence ``root`` (module docstring)."""
+    from jaxmocap.io.sources import SequenceSource
+    from jaxmocap.tracking.head_hands import head_hands_pose
+    from jaxmocap.tracking.options import TrackOptions
+    from jaxmocap.tracking.setup import TrackSetup
+
+    s = TrackSetup(SequenceSource(root), TrackOptions.from_preset("iros2007", downsample=downsample))
+    out = {"read": [], "features": [], "head and hands (OpenCV)": [], "head and hands (IK)": []}
+    for t in range(min(frames, s.source.num_frames)):
+        t0 = time.perf_counter()
+        fd = s.source.read(t, masks=False, depth=False)
+        t1 = time.perf_counter()
+        s.features(fd, s.model.num_dofs)
+        t2 = time.perf_counter()
+        det = s.head_hands(fd.images, s.model, None)
+        t3 = time.perf_counter()
+        if det is not None:
+            head_hands_pose(s.model, det, None)
+        t4 = time.perf_counter()
+        if t > 0:  # the first frame compiles
+            for k, dt in zip(out, (t1 - t0, t2 - t1, t3 - t2, t4 - t3), strict=True):
+                out[k].append(dt)
+    return {k: float(np.median(v)) for k, v in out.items()}
+
+
+def speed(frames: int, quick: bool) -> str:
+    """Frames/s end to end at two feature sizes and the stages' times (module docstring); writes :data:`SPEED`."""
+    from jaxmocap.io.sources import SequenceSource
+
+    frames = 4 if quick else frames
+    t_start = time.time()
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = pathlib.Path(tmp)
+        name, root = render(tmp, frames, "room", "medium")[0]
+        for downsample in (1, 4):
+            r = track(SequenceSource(root), tmp / "run", 0, dict(downsample=downsample))
+            st = stage_times(root, downsample, frames)
+            rows.append((downsample, r["summary"]["frames_per_s"], st))
+            print(
+                f"downsample {downsample}: {r['summary']['frames_per_s']:.1f} frames/s, {st}", file=sys.stderr
+            )
+    stages = list(rows[0][2])
+    lines = [
+        "# IROS 2007 speed: `--preset iros2007` end to end, by stage",
+        "",
+        f"{common.stamp()}; {common.machine_line()}; {(time.time() - t_start) / 60:.0f} min. {name} (CMU), "
+        f"{frames} frames at 15 fps, stereo 640x480 rendered in the room at clutter medium; IAPF 200 × 3, seed 0. "
+        "Frames/s: the tracker's rate after the first frame; stages: medians over the frames after the first, "
+        "measured apart (module docstring). The paper: 1–4 Hz on a Pentium IV; the goal here 30 frames/s at "
+        "640x480.",
+        "",
+        "| features | frames/s | ms/frame | "
+        + " | ".join(f"{k} (ms)" for k in stages)
+        + " | filter, rest (ms) |",
+        "|---|---|---|" + "---|" * len(stages) + "---|",
+    ]
+    for downsample, fps, st in rows:
+        total = 1e3 / fps
+        rest = total - 1e3 * sum(st.values())
+        size = f"{640 // downsample}x{480 // downsample}"
+        lines.append(
+            f"| {size} | {fps:.1f} | {total:.0f} | "
+            + " | ".join(f"{1e3 * st[k]:.0f}" for k in stages)
+            + f" | {rest:.0f} |"
+        )
+    return common.report(
+        SPEED, "\n".join(lines), f"python benchmarks/experiments/iros2007.py --speed --frames {frames}",
+        write=not quick,
+    )  # fmt: skip
 
 
 if __name__ == "__main__":
