@@ -26,7 +26,7 @@ __all__ = ["StereoGate", "StereoFrame"]
 class StereoFrame(NamedTuple):
     """One frame of the gate, all in the rectified first view at the gate's size ``(h, w)``: ``image (h, w, 3)``
     the rectified first view (BGR ``uint8``), ``disparity (h, w)`` float32 pixels (NaN: none), ``points (h, w, 3)``
-    world metres, ``ok (h, w)`` bool: the gate."""
+    world metres (NaN without a disparity), ``ok (h, w)`` bool: the gate."""
 
     image: np.ndarray
     disparity: np.ndarray
@@ -113,9 +113,10 @@ class StereoGate:
         ]
         disp = sgbm_disparity(rect[0], rect[1], self.matcher)
         w, h = self.size
-        u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-        pts = self.to_world(np.stack([u, v, disp], axis=-1))
         valid = np.nan_to_num(disp) > 0
+        iv, iu = np.nonzero(valid)  # the points of pixels with a disparity only (the rest: NaN)
+        pts = np.full((h, w, 3), np.nan)
+        pts[iv, iu] = self.to_world(np.column_stack([iu, iv, disp[iv, iu]]))
         centre = -self.t0 @ self.R0
         lo, hi = self.height_range
         with np.errstate(invalid="ignore"):

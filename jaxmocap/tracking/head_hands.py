@@ -289,8 +289,9 @@ class HeadHandsDetector:
 def _mean_by_label(labels: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
     """Mean of ``values (H, W)`` (``uint8``, read as ``/255``) over each label ``1 … n`` of ``labels (H, W)``:
     ``(n,)``."""
-    lab = labels.ravel()
-    sums = np.bincount(lab, values.ravel().astype(np.float64), minlength=n + 1)
+    on = labels > 0
+    lab = labels[on]
+    sums = np.bincount(lab, values[on].astype(np.float64), minlength=n + 1)
     counts = np.bincount(lab, minlength=n + 1)
     return sums[1:] / np.maximum(counts[1:], 1) / 255.0
 
