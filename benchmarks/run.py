@@ -266,6 +266,20 @@ SCRIPTS: dict[str, Script] = {
         writes=("iros2007.md",),
         slow=True,
     ),
+    "iros2007_ablation": Script(
+        "IROS 2007 in clutter: the head found with and without the stereo gate, and the five-cue ablation",
+        "experiments/iros2007.py",
+        "--ablation --runs 2 --frames 20",
+        writes=("iros2007_ablation.md",),
+        slow=True,
+    ),
+    "iros2007_speed": Script(
+        "IROS 2007 speed: --preset iros2007 frames/s at 640x480 and 160x120 features, and its stages' times",
+        "experiments/iros2007.py",
+        "--speed --frames 20",
+        writes=("iros2007_speed.md",),
+        slow=True,
+    ),
     "determinism": Script(
         "One seed tracked twice over 1500 frames in one process: identical poses",
         "experiments/determinism.py",

@@ -2,10 +2,20 @@
 
 Per frame, on the full-size images of a calibrated pair (views ``(0, 1)``):
 
-1. skin probability of each view (:meth:`jaxmocap.features.skin.SkinModel.probability_u8`), its ``max_blobs``
-   largest skin regions (:func:`jaxmocap.features.blobs.skin_blobs`), matched across the pair under the epipolar
-   constraint and triangulated (:func:`jaxmocap.features.blobs.stereo_blobs`): candidate 3D blobs ``b_k`` with
-   their first-view centroids ``u_k``;
+1. candidate 3D skin blobs ``b_k`` with their first-view centroids ``u_k``: the ``max_blobs`` largest skin regions
+   (:meth:`jaxmocap.features.skin.SkinModel.probability_u8`, :func:`jaxmocap.features.blobs.skin_blobs`) of each
+   view, matched across the pair under the epipolar constraint and triangulated
+   (:func:`jaxmocap.features.blobs.stereo_blobs`). With the stereo gate (``stereo_gate=True``, the default;
+   :class:`jaxmocap.features.disparity.StereoGate`: the pair rectified at half size, its SGBM disparity turned
+   into world points) a matched blob is kept only where the dense disparity agrees with its own (within
+   ``max_disparity_error`` pixels at half size): in a cluttered room a face merged with skin-coloured clutter is
+   matched to the wrong blob, metres off. When no kept blob can be a head (none as high as ``min_head_height``),
+   the candidates are instead the skin regions of the first view where the dense stereo puts a pixel in the space
+   a person can occupy (step 2), each at the median disparity of its pixels moved ``surface_offset`` × its radius
+   along the viewing ray (the disparity is that of the visible surface; a head's centre lies about a radius
+   behind it). Skin-coloured clutter on the walls fails that gate whatever its colour, and a face that touches
+   such clutter in the image is cut from it, with no background model (the cameras may move); on a plain
+   backdrop the matched blobs all agree and the result is that of the matching alone;
 2. candidates outside the space a person can occupy are dropped: height ``z`` outside ``height_range`` (metres,
    world ``z`` up, floor at 0) or farther than ``max_range`` from the first camera (skin-coloured things on the
    walls);
@@ -14,8 +24,8 @@ Per frame, on the full-size images of a calibrated pair (views ``(0, 1)``):
    found, or none over a blob — the highest candidate whose height is at least ``min_head_height``;
 4. the hands: the two other candidates within ``reach`` of the head with the best scores (match confidence ×
    mean skin probability of the blob) whose size is a hand's (the disc of the blob's area at its depth has a
-   radius of at most ``hand_radius``, 8 cm); a missing hand gets weight 0
-   in the IK;
+   radius of at most ``hand_radius``, 8 cm); of two such candidates closer than ``min_hand_gap`` (0.25 m: a hand
+   and its own wrist or forearm) only the better is kept; a missing hand gets weight 0 in the IK;
 5. left / right (:func:`assign_hands`): the assignment nearest to the wrists of a reference pose (the last good
    estimate) when there is one, else the person faces the first camera, so that the person's left hand is on the
    camera's right (larger ``x`` in its frame);
@@ -29,6 +39,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import cv2
 import jax.numpy as jnp
 import numpy as np
 
@@ -102,7 +113,9 @@ class HeadHandsDetector:
     ``rig``: the calibration of the full-size ``images`` (BGR ``uint8``, one per view); ``views``: the stereo
     pair; ``skin_model`` / ``face_detector``: default the package's skin model and OpenCV's frontal-face
     cascade (``face=False``: no face detection, the head is the highest blob); ``min_area``: the smallest blob
-    in pixels (default 20 at 640×480, in proportion to the image area, at least 4)."""
+    in pixels (default 20 at 640×480, in proportion to the image area, at least 4); ``stereo_gate``: the matched
+    blobs checked against dense stereo at ``gate_scale`` of the full size, and the gated blobs when none is left
+    that can be a head (step 1; ``max_disparity_error``, ``surface_offset``); ``min_hand_gap``: step 4."""
 
     def __init__(
         self,
@@ -119,6 +132,11 @@ class HeadHandsDetector:
         min_head_height: float = 1.0,
         reach: float = 1.2,
         hand_radius: float = 0.08,
+        stereo_gate: bool = True,
+        gate_scale: float = 0.5,
+        surface_offset: float = 1.0,
+        min_hand_gap: float = 0.25,
+        max_disparity_error: float = 2.0,
     ):
         from jaxmocap.features.skin import default_skin_model
 
@@ -140,13 +158,41 @@ class HeadHandsDetector:
         self.height_range, self.max_range = tuple(height_range), float(max_range)
         self.min_head_height, self.reach = float(min_head_height), float(reach)
         self.hand_radius = float(hand_radius)
+        self.gate, self.surface_offset = None, float(surface_offset)
+        self.min_hand_gap, self.max_disparity_error = float(min_hand_gap), float(max_disparity_error)
+        if stereo_gate:
+            from jaxmocap.features.disparity import StereoGate
+
+            self.gate = StereoGate(rig, self.views, gate_scale, self.max_range, self.height_range)
         self._centre = np.asarray(camera.camera_centres(rig.to_jax(jnp.float32)), np.float64)[self.views[0]]
 
     def candidates(self, images) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """``(points (K, 3), first-view centroids (K, 2), scores (K,), radii (K,))`` of the plausible matched blobs;
-        a score is the match's confidence times the blob's mean skin probability in the first view (a hand is skin
-        through and through; a noisy patch of clothing is skin in places); a radius, metres, is that of the disc
-        of the blob's first-view area at its depth, ``√(A/π) Z / f``."""
+        """``(points (K, 3), first-view centroids (K, 2), scores (K,), radii (K,))`` of the plausible blobs; a
+        score is the blob's mean skin probability in the first view (a hand is skin through and through; a noisy
+        patch of clothing is skin in places), times the match's confidence without the stereo gate; a radius,
+        metres, is that of the disc of the blob's first-view area at its depth, ``√(A/π) Z / f``.
+
+        With the stereo gate (``stereo_gate=True``, :class:`jaxmocap.features.disparity.StereoGate`) the blobs
+        are those of the first view's skin probability where the dense disparity puts a pixel in the space a
+        person can occupy, each at the median disparity of its gated pixels (no blob matching across views);
+        without it, the blobs of both views matched under the epipolar constraint and triangulated."""
+        matched = self._plausible(*self._matched_blobs(images))
+        if self.gate is None:
+            return matched
+        frame = self.gate(images, self.views)
+        keep = self.gate.agrees(frame, matched[0], self.max_disparity_error)
+        matched = tuple(a[keep] for a in matched)
+        if np.any(matched[0][:, 2] >= self.min_head_height):
+            return matched
+        return self._plausible(*self._gated_blobs(frame))
+
+    def _plausible(self, pts, uv, score, radius):
+        lo, hi = self.height_range
+        ok = (pts[:, 2] >= lo) & (pts[:, 2] <= hi)
+        ok &= np.linalg.norm(pts - self._centre, axis=1) <= self.max_range
+        return pts[ok], uv[ok], score[ok], radius[ok]
+
+    def _matched_blobs(self, images):
         i, j = self.views
         prob = [self.skin_model.probability_u8(images[v]) for v in (i, j)]
         blobs = [
@@ -160,18 +206,41 @@ class HeadHandsDetector:
         pts, conf = pts[:n], conf[:n]
         first = [m.i for m in matches]
         uv = blobs[0].centroids[first].reshape(-1, 2)
-        lab = blobs[0].labels.ravel()
-        sums = np.bincount(lab, prob[0].ravel().astype(np.float64), minlength=self.max_blobs + 1)
-        counts = np.bincount(lab, minlength=self.max_blobs + 1)
-        skinness = sums[1:] / np.maximum(counts[1:], 1) / 255.0
+        skinness = _mean_by_label(blobs[0].labels, prob[0], self.max_blobs)
         score = conf * skinness[first] if n else conf
         R, t, K = (np.asarray(a[i], np.float64) for a in (self.rig.R, self.rig.t, self.rig.K))
         depth = pts @ R[2] + t[2]
         radius = np.sqrt(blobs[0].areas[first] / np.pi) * depth / K[0, 0] if n else conf
-        lo, hi = self.height_range
-        ok = (pts[:, 2] >= lo) & (pts[:, 2] <= hi)
-        ok &= np.linalg.norm(pts - self._centre, axis=1) <= self.max_range
-        return pts[ok], uv[ok], score[ok], radius[ok]
+        return pts, uv, score, radius
+
+    def _gated_blobs(self, frame):
+        g = self.gate
+        prob = self.skin_model.probability_u8(frame.image)
+        prob = np.where(frame.ok, prob, np.uint8(0))
+        scale = g.size[0] / self.rig.image_size[self.views[0]][0]
+        min_area = max(4, round(self.min_area * scale * scale))
+        b = skin_blobs(prob, self.threshold, self.max_blobs, min_area, with_labels=True)
+        n = len(b.areas)
+        lab = b.labels
+        disp = np.array(
+            [np.nanmedian(frame.disparity[(lab == k + 1) & frame.ok]) for k in range(n)], np.float64
+        )
+        pts = g.to_world(np.column_stack([b.centroids, disp])).reshape(-1, 3)
+        score = _mean_by_label(lab, prob, self.max_blobs)[:n]
+        i = self.views[0]
+        R, t, K, d = (
+            np.asarray(a[i], np.float64) for a in (self.rig.R, self.rig.t, self.rig.K, self.rig.dist)
+        )
+        if n:
+            uv = cv2.projectPoints(pts, cv2.Rodrigues(R)[0], t, K, d)[0].reshape(-1, 2)
+        else:
+            uv = np.zeros((0, 2))
+        depth = pts @ R[2] + t[2]
+        radius = np.sqrt(b.areas / np.pi) * depth / g.P1[0, 0]
+        # the disparity is the visible surface's; a head or a fist is round: its centre lies a radius behind
+        ray = pts - self._centre
+        pts = pts + self.surface_offset * radius[:, None] * ray / np.linalg.norm(ray, axis=1, keepdims=True)
+        return pts, uv, score, radius
 
     def faces_near(self, image: np.ndarray, uv: np.ndarray, half: int = 48) -> np.ndarray:
         """Face boxes ``(F, 4)`` found in windows of ``2·half`` pixels around the centroids ``uv (K, 2)`` (a face
@@ -202,6 +271,8 @@ class HeadHandsDetector:
             m for m in rest if np.linalg.norm(pts[m] - head) <= self.reach and radius[m] <= self.hand_radius
         ]
         rest = rest[:2]
+        if len(rest) == 2 and np.linalg.norm(pts[rest[0]] - pts[rest[1]]) < self.min_hand_gap:
+            rest = rest[:1]  # two pieces of one arm (a hand and its wrist or forearm), not two hands
         hands = np.repeat(head[None], 2, axis=0)
         weights = np.array([1.0, 0.0, 0.0])
         if len(rest) == 2:
@@ -213,6 +284,16 @@ class HeadHandsDetector:
             hands[side] = pts[rest[0]]
             weights[1 + side] = 1.0
         return HeadHands(head, hands[0], hands[1], weights, how)
+
+
+def _mean_by_label(labels: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    """Mean of ``values (H, W)`` (``uint8``, read as ``/255``) over each label ``1 … n`` of ``labels (H, W)``:
+    ``(n,)``."""
+    on = labels > 0
+    lab = labels[on]
+    sums = np.bincount(lab, values[on].astype(np.float64), minlength=n + 1)
+    counts = np.bincount(lab, minlength=n + 1)
+    return sums[1:] / np.maximum(counts[1:], 1) / 255.0
 
 
 def head_hands_pose(model, det: HeadHands, reference: np.ndarray | None = None) -> np.ndarray | None:
