@@ -10,9 +10,17 @@ Two tables, both with the persistent compilation cache off (``JAXMOCAP_CACHE_DIR
    * ``likelihood``: the tracker's log-likelihood over 8192 particles;
    * ``apf``: one frame of the annealed particle filter with the default particles and layers.
 
-   For each: the time to trace and lower (``jit(...).lower``), to compile (``.compile()``, XLA) and the size of
-   the lowered module in lines of StableHLO text (the CPU compiler's time grows with it). ``--isolate`` runs each
-   row in a fresh interpreter, as ``jaxmocap track`` sees it.
+   With ``--pieces`` also (or instead) the programs of ``--filter hybrid`` (its cues: :data:`HYBRID_CUES`):
+
+   * ``hybrid``: one frame of the hybrid filter (layers with gradient moves);
+   * ``hybrid-nomove``: the same filter without its moves (what the moves add is the difference);
+   * ``gradient``: the value and gradient of the tracker's likelihood at the ``best_k`` particles one optimiser
+     step of a move evaluates.
+
+   For each: the time to trace and lower (``jit(...).lower``), to compile (``.compile()``, XLA), the process's CPU
+   time during the compilation (XLA compiles its kernels on a thread pool) and the size of the lowered module in
+   lines of StableHLO text (the CPU compiler's time grows with it). ``--isolate`` runs each row in a fresh
+   interpreter, as ``jaxmocap track`` sees it.
 
 2. **First frame** (default): the wall time from process start to the end of a one-frame ``jaxmocap track`` run
    (import, features, initialisation, compilation of the filter step, one step, outputs) for every model × filter
@@ -47,6 +55,7 @@ under the table names that checkout and its commit).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import pathlib
@@ -64,6 +73,8 @@ import common  # noqa: E402
 
 MODELS = ("upper9", "upper14", "full25")
 PIECES = ("fk", "likelihood", "apf")
+#: the programs of ``--filter hybrid`` (``--pieces``)
+HYBRID_PIECES = ("hybrid", "hybrid-nomove", "gradient")
 #: filter family -> (filter name, particle-count rule: None = the default, "unequal" = one count per partition)
 FAMILIES = {
     "apf": ("apf", None),
@@ -114,10 +125,12 @@ def program(model_name: str, piece: str, seq: pathlib.Path, particles: int = 819
     from jaxmocap.tracking.options import TrackOptions
     from jaxmocap.tracking.setup import TrackSetup
 
-    setup = TrackSetup(SequenceSource(seq), TrackOptions(model=model_name, filter="apf"))
+    hybrid = piece in HYBRID_PIECES
+    options = TrackOptions(model=model_name, filter="hybrid", cues=HYBRID_CUES) if hybrid else None
+    setup = TrackSetup(SequenceSource(seq), options or TrackOptions(model=model_name, filter="apf"))
     model = setup.model
     x0 = np.asarray(model.rest_pose, np.float32)
-    n = particles if piece != "apf" else int(setup.num_particles)
+    n = particles if piece in ("fk", "likelihood") else int(setup.num_particles)
     X = jnp.asarray(x0 + 0.05 * np.random.default_rng(1).normal(size=(n, model.num_dofs)), jnp.float32)
     if piece == "fk":
         return jax.jit(jax.vmap(lambda x: body.segment_poses(model, x))), (X,), n
@@ -125,6 +138,15 @@ def program(model_name: str, piece: str, seq: pathlib.Path, particles: int = 819
     if piece == "likelihood":
         return jax.jit(setup.loglik), (X, tobs, 0), n
     filt = setup.make_filter(x0)
+    if piece == "gradient":
+        from jaxmocap.filters.base import Layer
+        from jaxmocap.likelihood.gradients import batch_value_and_grad
+
+        k = filt.move.best_k
+        layer = Layer(jnp.int32(0), jnp.float32(0.1))
+        return jax.jit(lambda X, o: batch_value_and_grad(filt.loglik_batch, X, o, layer)), (X[:k], tobs), k
+    if piece == "hybrid-nomove":
+        filt = dataclasses.replace(filt, move=None)
     state = filt.init(jax.random.key(0), jnp.asarray(x0))
     return jax.jit(filt.step), (jax.random.key(1), state, tobs), n
 
@@ -134,9 +156,11 @@ def measure(model_name: str, piece: str, seq: pathlib.Path) -> dict:
     t0 = time.perf_counter()
     lowered = f.lower(*args)
     t1 = time.perf_counter()
+    c1 = _cpu_seconds(resource.RUSAGE_SELF)
     lowered.compile()
     t2 = time.perf_counter()
     return dict(
+        compile_cpu_s=_cpu_seconds(resource.RUSAGE_SELF) - c1,
         model=model_name,
         piece=piece,
         particles=n,
@@ -146,6 +170,12 @@ def measure(model_name: str, piece: str, seq: pathlib.Path) -> dict:
     )
 
 
+def _cpu_seconds(who) -> float:
+    """User + system CPU seconds of this process (every thread) or of its finished children."""
+    r = resource.getrusage(who)
+    return r.ru_utime + r.ru_stime
+
+
 def _isolated(model_name: str, piece: str, seq: pathlib.Path) -> dict:
     """:func:`measure` in a fresh interpreter (no compiled program or trace shared with earlier rows)."""
     cmd = [sys.executable, __file__, "--row", model_name, piece, str(seq)]
@@ -153,14 +183,17 @@ def _isolated(model_name: str, piece: str, seq: pathlib.Path) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def programs_table(models, seq: pathlib.Path, isolate: bool) -> list[str]:
-    lines = ["| model | piece | particles | lower s | compile s | HLO lines |", "|---|---|---|---|---|---|"]
+def programs_table(models, seq: pathlib.Path, isolate: bool, pieces=PIECES) -> list[str]:
+    lines = [
+        "| model | piece | particles | lower s | compile s | compile CPU s | HLO lines |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for m in models:
-        for p in PIECES:
+        for p in pieces:
             r = (_isolated if isolate else measure)(m, p, seq)
             lines.append(
                 f"| {r['model']} | {r['piece']} | {r['particles']} | {r['lower_s']:.2f} | {r['compile_s']:.2f} "
-                f"| {r['hlo_lines']} |"
+                f"| {r['compile_cpu_s']:.2f} | {r['hlo_lines']} |"
             )
             print(lines[-1], flush=True)
     return lines
@@ -195,15 +228,14 @@ def first_frame_seconds(
     """``(wall s, CPU s, None)`` of a one-frame ``jaxmocap track`` in a new process with ``checkout``'s package
     (CPU: user + system time of the process, every thread), or ``(None, None, why)`` when it failed."""
     cmd = track_command(seq, model, family, out, "--frames", "0:1")
-    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    c0 = _cpu_seconds(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True, env=_env(checkout), cwd=str(out.parent))
     seconds = time.perf_counter() - t0
-    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     if proc.returncode != 0:
         tail = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or ["?"]
         return None, None, tail[0]
-    return seconds, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime), None
+    return seconds, _cpu_seconds(resource.RUSAGE_CHILDREN) - c0, None
 
 
 def _table_start(before: pathlib.Path | None, alone: str, paired: str) -> tuple[dict, list[str]]:
@@ -400,6 +432,9 @@ def main(argv=None):
     ap.add_argument("--before", type=pathlib.Path, help="another checkout to run side by side (first frame)")
     ap.add_argument("--programs", action="store_true", help="the programs table instead of the first frame")
     ap.add_argument("--isolate", action="store_true", help="programs: each row in a fresh interpreter")
+    ap.add_argument(
+        "--pieces", nargs="*", default=list(PIECES), choices=[*PIECES, *HYBRID_PIECES], help="programs: which"
+    )
     ap.add_argument("--steps", action="store_true", help="the step-time table instead of the first frame")
     ap.add_argument("--rounds", type=int, help="rounds per configuration (first frame: 1, steps: 7)")
     ap.add_argument("--tracks", action="store_true", help="whole tracks of the sequence (of both checkouts)")
@@ -425,7 +460,7 @@ def main(argv=None):
         load0 = os.getloadavg()[0]
         if a.programs:
             title = "Compile time of the tracker's programs (cache off)"
-            lines = programs_table(a.models, seq, a.isolate)
+            lines = programs_table(a.models, seq, a.isolate, a.pieces)
         elif a.tracks:
             title = "Whole tracks of the sequence (16 frames; mean joint error against the ground truth)"
             lines = tracks_table(a.models, a.filters, seq, a.before, a.seeds, work)
