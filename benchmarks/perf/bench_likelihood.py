@@ -23,8 +23,16 @@ the compiled program as before (the path a traced rig takes) and read from the t
 interleaved rounds (each the median of ``--repeats`` calls), the median before/after ratio, the load average, and
 the largest difference of the two log-likelihoods.
 
+``--chunks`` times the particle chunks of ``Likelihood.batch`` side by side: equal chunks of at most
+``chunk_size`` (``n = ⌈N / 128⌉`` chunks of ``⌈N / n⌉``, 200 particles as 2 × 100) against the former padding of
+every batch to a multiple of ``chunk_size`` (200 as 2 × 128, 56 copies evaluated and dropped), emulated by padding
+the batch before the call; ``upper14-iros`` and ``full25-lk`` at 200, 300 and 1000 particles; interleaved rounds
+(each the mean of 5 calls), the per-round ratio padded / equal and its median, the load average; the two give
+the same values bit for bit (checked).
+
     .venv/bin/python benchmarks/perf/bench_likelihood.py [--particles 8192] [--repeats 7] [--per-cue] [--sweep] [--quick]
     .venv/bin/python benchmarks/perf/bench_likelihood.py --configs --divergence [--rounds 15]
+    .venv/bin/python benchmarks/perf/bench_likelihood.py --configs --chunks [--rounds 15]
 """
 
 from __future__ import annotations
@@ -168,6 +176,42 @@ def print_divergence(n: int, rounds: int, repeats: int, rng) -> None:
     print(f"largest |log-likelihood before − after|: {r['diff']:.2e}")
 
 
+def chunks_side_by_side(rounds: int) -> None:
+    """``--chunks`` (module docstring): one table row per configuration and particle count."""
+    print("\nParticle chunks of Likelihood.batch: equal chunks against padding to a multiple of chunk_size")
+    print("| config | particles | padded to | ratio per round (padded / equal time) | median | load |")
+    print("|---|---|---|---|---|---|")
+    for cfg in CONFIGS:
+        model, _, obs, lik, _ = build(cfg, np.random.default_rng(0))
+        for n in (200, 300, 1000):
+            padded = -(-n // lik.chunk_size) * lik.chunk_size
+            X = jnp.asarray(particles(model, n, np.random.default_rng(n)))
+            equal = jax.jit(lambda X, o, lik=lik: lik.batch(X, o, 0))
+
+            def pad(X, o, lik=lik, n=n, padded=padded):
+                copies = jnp.broadcast_to(X[:1], (padded - n, X.shape[1]))
+                return lik.batch(jnp.concatenate([X, copies]), o, 0)[:n]
+
+            pad = jax.jit(pad)
+            if not np.array_equal(np.asarray(equal(X, obs)), np.asarray(pad(X, obs))):
+                raise AssertionError(f"{cfg}, {n} particles: the two chunkings differ")
+            ratios = []
+            for r in range(rounds):
+                t = {}
+                for name, f in (("pad", pad), ("equal", equal))[:: 1 if r % 2 else -1]:
+                    f(X, obs).block_until_ready()
+                    t0 = time.perf_counter()
+                    for _ in range(5):
+                        f(X, obs).block_until_ready()
+                    t[name] = time.perf_counter() - t0
+                ratios.append(t["pad"] / t["equal"])
+            text = ", ".join(f"{q:.2f}" for q in ratios)
+            print(
+                f"| {cfg} | {n} | {padded} | {text} | **{np.median(ratios):.2f}** | {os.getloadavg()[0]:.2f} |",
+                flush=True,
+            )
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--particles", type=int, default=8192)
@@ -195,7 +239,12 @@ def main(argv=None):
         action="store_true",
         help="also time the divergence cue before/after its host-side sample grid (lopez-mendez cues, 200 particles)",
     )
-    ap.add_argument("--rounds", type=int, default=15, help="interleaved rounds of --divergence")
+    ap.add_argument(
+        "--chunks",
+        action="store_true",
+        help="also time equal particle chunks against padding to a multiple of chunk_size (200, 300, 1000 particles)",
+    )
+    ap.add_argument("--rounds", type=int, default=15, help="interleaved rounds of --divergence and --chunks")
     a = ap.parse_args(argv)
     if a.quick:
         a.particles, a.repeats, a.numpy_repeats = 1024, 3, 1
@@ -236,6 +285,8 @@ def main(argv=None):
             print(f"| {name} | {sec * 1e3:.1f} | {a.particles / sec:,.0f} |", flush=True)
     if a.divergence:
         print_divergence(200, a.rounds, a.repeats, rng)
+    if a.chunks:
+        chunks_side_by_side(a.rounds)
     print(f"load average after: {os.getloadavg()[0]:.2f}")
 
 

@@ -17,7 +17,8 @@ Evaluation (:meth:`Likelihood.batch`, what the filters call):
    straight into camera coordinates), projection, facing test, one shared nearest-pixel index per sample set and
    the visible index through which one gather reads a colour and whether the sample is seen, computed once for all
    cues of the table;
-3. the λ table: particles are processed in chunks of ``chunk_size`` (``lax.map`` over vmapped chunks), so that the
+3. the λ table: particles are processed in chunks of at most ``chunk_size`` (``lax.map`` over ``n = ⌈N / chunk_size⌉``
+   vmapped chunks of ``⌈N / n⌉``, the last padded with copies of the first particle), so that the
    ``(chunk, V, P)`` intermediates stay in cache — on CPU this is 2–3× faster than one vmap over all particles —
    and each particle's ``−Σ_c Σ_v λ_c,v k_c w_v E_c,v`` is one sum over its ``(C, V)`` table;
 4. a cue registered as ``separate`` (:class:`jaxmocap.likelihood.cues.CueSpec`: the silhouette ``coverage``) is
@@ -546,8 +547,8 @@ class Likelihood:
     def batch(self, X: jnp.ndarray, obs: Observation, layer=0, partition=None) -> jnp.ndarray:
         """``(N,)`` log-likelihoods of particles ``X (N, D)``; non-finite values become −inf.
 
-        The observation-only work is done once; particles go through the λ table in chunks of ``chunk_size``
-        (padded with copies of the first particle, whose results are dropped), then the separate cues are
+        The observation-only work is done once; particles go through the λ table in equal chunks of at most
+        ``chunk_size`` (module docstring, step 3; padding copies' results dropped), then the separate cues are
         subtracted (module docstring). ``partition`` (default: ``layer.partition`` of a filter's
         :class:`~jaxmocap.filters.base.Layer`, else 0; an int or traced int32): with a partition table
         (:meth:`with_partitions`) the cues weigh that partition's body parts; ignored without one.
@@ -577,6 +578,7 @@ class Likelihood:
         N, D = X.shape
         c = self.chunk_size
         n = 1 if c <= 0 or N <= c else -(-N // c)
+        c = -(-N // n)  # n chunks as equal as can be: 200 particles go as 2 × 100, not 2 × 128 with 56 copies
         if n > 1 and n * c > N:
             X = jnp.concatenate([X, jnp.broadcast_to(X[:1], (n * c - N, D))])
         pose = jax.vmap(lambda x: self.pose_stage(x, needs))(X)
