@@ -12,8 +12,9 @@ by the workers and by the ``jaxmocap`` child processes): most of the suite's tim
 then run for milliseconds. Two flags: XLA's lowest backend optimisation level
 (``--xla_backend_optimization_level=0``: how much LLVM optimises the machine code) and XLA's classic loop emitters
 instead of its MLIR fusion emitters (``--xla_cpu_use_fusion_emitters=false``: XLA spends about a third of a compile
-in the emitters' per-kernel pipeline; on the tracker's likelihood and its gradient this compiles 1.7–2.7× faster
-and runs about 25 % slower, which is why the command line keeps XLA's defaults). Neither changes the operations of
+in the emitters' per-kernel pipeline). Together they cut the compilation of the tracker's programs 2.6–4.0× and make
+them run 4.7–9.7× slower (``benchmarks/perf/compile_time.py --programs --codegen``), which is why the command line
+keeps XLA's defaults. Neither changes the operations of
 a program: the results agree with the defaults' to float rounding, which the tolerances allow for. Programs compared
 bit for bit, and those whose time is run time, are compiled with XLA's defaults by their tests. No test times
 anything. To run the suite on the production code generation, name the flags yourself

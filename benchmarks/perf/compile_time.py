@@ -20,7 +20,11 @@ Two tables, both with the persistent compilation cache off (``JAXMOCAP_CACHE_DIR
    For each: the time to trace and lower (``jit(...).lower``), to compile (``.compile()``, XLA), the process's CPU
    time during the compilation (XLA compiles its kernels on a thread pool) and the size of the lowered module in
    lines of StableHLO text (the CPU compiler's time grows with it). ``--isolate`` runs each row in a fresh
-   interpreter, as ``jaxmocap track`` sees it.
+   interpreter, as ``jaxmocap track`` sees it. With ``--codegen`` each program is compiled three times more: with
+   XLA's default code generation, with the defaults but XLA's classic loop emitters instead of its MLIR fusion
+   emitters (:data:`CLASSIC_CODEGEN`), and with the test suite's (:data:`SUITE_CODEGEN`: the classic emitters at
+   the lowest backend optimisation level, ``tests/conftest.py``); the table gives each compilation's CPU time and
+   each program's run time (interleaved rounds, the median of each, and the medians of the per-round ratios).
 
 2. **First frame** (default): the wall time from process start to the end of a one-frame ``jaxmocap track`` run
    (import, features, initialisation, compilation of the filter step, one step, outputs) for every model × filter
@@ -48,7 +52,7 @@ With ``--out FILE`` the table is written with the command that regenerates it le
 under the table names that checkout and its commit).
 
     python benchmarks/perf/compile_time.py [--models upper9 upper14 full25] [--filters apf iapf ...]
-                                           [--before DIR] [--rounds N] [--programs [--isolate]] [--steps]
+                                           [--before DIR] [--rounds N] [--programs [--isolate] [--codegen]] [--steps]
                                            [--tracks --seeds 0 1 2] [--quick]
 """
 
@@ -75,6 +79,11 @@ MODELS = ("upper9", "upper14", "full25")
 PIECES = ("fk", "likelihood", "apf")
 #: the programs of ``--filter hybrid`` (``--pieces``)
 HYBRID_PIECES = ("hybrid", "hybrid-nomove", "gradient")
+#: the test suite's code generation (tests/conftest.py), against XLA's defaults (``--codegen``)
+SUITE_CODEGEN = {"xla_backend_optimization_level": 0, "xla_cpu_use_fusion_emitters": False}
+DEFAULT_CODEGEN = {"xla_backend_optimization_level": 3, "xla_cpu_use_fusion_emitters": True}
+#: XLA's defaults but the classic loop emitters (the suite's second flag alone)
+CLASSIC_CODEGEN = {"xla_backend_optimization_level": 3, "xla_cpu_use_fusion_emitters": False}
 #: filter family -> (filter name, particle-count rule: None = the default, "unequal" = one count per partition)
 FAMILIES = {
     "apf": ("apf", None),
@@ -151,7 +160,7 @@ def program(model_name: str, piece: str, seq: pathlib.Path, particles: int = 819
     return jax.jit(filt.step), (jax.random.key(1), state, tobs), n
 
 
-def measure(model_name: str, piece: str, seq: pathlib.Path) -> dict:
+def measure(model_name: str, piece: str, seq: pathlib.Path, codegen: bool = False) -> dict:
     f, args, n = program(model_name, piece, seq)
     t0 = time.perf_counter()
     lowered = f.lower(*args)
@@ -159,7 +168,7 @@ def measure(model_name: str, piece: str, seq: pathlib.Path) -> dict:
     c1 = _cpu_seconds(resource.RUSAGE_SELF)
     lowered.compile()
     t2 = time.perf_counter()
-    return dict(
+    out = dict(
         compile_cpu_s=_cpu_seconds(resource.RUSAGE_SELF) - c1,
         model=model_name,
         piece=piece,
@@ -168,6 +177,36 @@ def measure(model_name: str, piece: str, seq: pathlib.Path) -> dict:
         compile_s=t2 - t1,
         hlo_lines=len(lowered.as_text().splitlines()),
     )
+    if codegen:
+        out.update(codegen_rows(lowered, args))
+    return out
+
+
+def codegen_rows(lowered, args, rounds: int = 9) -> dict:
+    """``--codegen``: compile CPU seconds and run seconds of ``lowered`` with XLA's defaults, the classic emitters
+    and the suite's code generation (interleaved rounds, each the mean of 3 calls after one untimed call)."""
+    import jax
+    import numpy as np
+
+    compiled, out = {}, {}
+    variants = (("default", DEFAULT_CODEGEN), ("classic", CLASSIC_CODEGEN), ("suite", SUITE_CODEGEN))
+    for name, options in variants:
+        c0 = _cpu_seconds(resource.RUSAGE_SELF)
+        compiled[name] = lowered.compile(compiler_options=options)
+        out[f"{name}_compile_cpu_s"] = _cpu_seconds(resource.RUSAGE_SELF) - c0
+    runs = {name: [] for name in compiled}
+    for r in range(rounds):
+        for name in sorted(compiled, reverse=r % 2 == 1):  # the order alternating
+            jax.block_until_ready(compiled[name](*args))
+            t0 = time.perf_counter()
+            for _ in range(3):
+                jax.block_until_ready(compiled[name](*args))
+            runs[name].append((time.perf_counter() - t0) / 3)
+    for name, t in runs.items():
+        out[f"{name}_run_s"] = float(np.median(t))
+    for name in ("classic", "suite"):
+        out[f"{name}_run_ratio"] = float(np.median(np.asarray(runs[name]) / np.asarray(runs["default"])))
+    return out
 
 
 def _cpu_seconds(who) -> float:
@@ -176,25 +215,47 @@ def _cpu_seconds(who) -> float:
     return r.ru_utime + r.ru_stime
 
 
-def _isolated(model_name: str, piece: str, seq: pathlib.Path) -> dict:
+def _isolated(model_name: str, piece: str, seq: pathlib.Path, codegen: bool = False) -> dict:
     """:func:`measure` in a fresh interpreter (no compiled program or trace shared with earlier rows)."""
-    cmd = [sys.executable, __file__, "--row", model_name, piece, str(seq)]
+    cmd = [
+        sys.executable,
+        __file__,
+        "--row",
+        model_name,
+        piece,
+        str(seq),
+        *(["--codegen"] if codegen else []),
+    ]
     out = subprocess.run(cmd, check=True, capture_output=True, text=True, env=_env(ROOT))
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def programs_table(models, seq: pathlib.Path, isolate: bool, pieces=PIECES) -> list[str]:
-    lines = [
-        "| model | piece | particles | lower s | compile s | compile CPU s | HLO lines |",
-        "|---|---|---|---|---|---|---|",
-    ]
+def programs_table(
+    models, seq: pathlib.Path, isolate: bool, pieces=PIECES, codegen: bool = False
+) -> list[str]:
+    head = "| model | piece | particles | lower s | compile s | compile CPU s | HLO lines |"
+    if codegen:
+        head += (
+            " compile CPU s: defaults / classic / suite | run ms: defaults / classic / suite |"
+            " run time / defaults: classic, suite |"
+        )
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for m in models:
         for p in pieces:
-            r = (_isolated if isolate else measure)(m, p, seq)
-            lines.append(
+            r = (_isolated if isolate else measure)(m, p, seq, codegen)
+            line = (
                 f"| {r['model']} | {r['piece']} | {r['particles']} | {r['lower_s']:.2f} | {r['compile_s']:.2f} "
                 f"| {r['compile_cpu_s']:.2f} | {r['hlo_lines']} |"
             )
+            if codegen:
+                line += (
+                    " "
+                    + " / ".join(f"{r[k + '_compile_cpu_s']:.2f}" for k in ("default", "classic", "suite"))
+                    + " | "
+                    + " / ".join(f"{r[k + '_run_s'] * 1e3:.1f}" for k in ("default", "classic", "suite"))
+                    + f" | {r['classic_run_ratio']:.2f}, {r['suite_run_ratio']:.2f} |"
+                )
+            lines.append(line)
             print(lines[-1], flush=True)
     return lines
 
@@ -433,6 +494,9 @@ def main(argv=None):
     ap.add_argument("--programs", action="store_true", help="the programs table instead of the first frame")
     ap.add_argument("--isolate", action="store_true", help="programs: each row in a fresh interpreter")
     ap.add_argument(
+        "--codegen", action="store_true", help="programs: XLA's default code generation against the suite's"
+    )
+    ap.add_argument(
         "--pieces", nargs="*", default=list(PIECES), choices=[*PIECES, *HYBRID_PIECES], help="programs: which"
     )
     ap.add_argument("--steps", action="store_true", help="the step-time table instead of the first frame")
@@ -447,7 +511,7 @@ def main(argv=None):
     os.environ["JAXMOCAP_CACHE_DIR"] = "off"
     os.environ.pop("JAX_COMPILATION_CACHE_DIR", None)
     if a.row:
-        print(json.dumps(measure(a.row[0], a.row[1], pathlib.Path(a.row[2]))))
+        print(json.dumps(measure(a.row[0], a.row[1], pathlib.Path(a.row[2]), a.codegen)))
         return
     if a.worker:
         step_worker(a.worker[0], a.worker[1], pathlib.Path(a.worker[2]))
@@ -460,7 +524,7 @@ def main(argv=None):
         load0 = os.getloadavg()[0]
         if a.programs:
             title = "Compile time of the tracker's programs (cache off)"
-            lines = programs_table(a.models, seq, a.isolate, a.pieces)
+            lines = programs_table(a.models, seq, a.isolate, a.pieces, a.codegen)
         elif a.tracks:
             title = "Whole tracks of the sequence (16 frames; mean joint error against the ground truth)"
             lines = tracks_table(a.models, a.filters, seq, a.before, a.seeds, work)
