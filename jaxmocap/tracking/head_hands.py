@@ -172,10 +172,11 @@ class HeadHandsDetector:
         patch of clothing is skin in places), times the match's confidence without the stereo gate; a radius,
         metres, is that of the disc of the blob's first-view area at its depth, ``√(A/π) Z / f``.
 
-        With the stereo gate (``stereo_gate=True``, :class:`jaxmocap.features.disparity.StereoGate`) the blobs
-        are those of the first view's skin probability where the dense disparity puts a pixel in the space a
-        person can occupy, each at the median disparity of its gated pixels (no blob matching across views);
-        without it, the blobs of both views matched under the epipolar constraint and triangulated."""
+        Without the stereo gate: the blobs of both views matched under the epipolar constraint and triangulated.
+        With it (``stereo_gate=True``, :class:`jaxmocap.features.disparity.StereoGate`): those of the matched
+        blobs whose disparity the dense stereo confirms; when none of them can be a head, the blobs of the first
+        view's skin probability where the dense disparity puts a pixel in the space a person can occupy, each at
+        the median disparity of its gated pixels (module docstring, step 1)."""
         matched = self._plausible(*self._matched_blobs(images))
         if self.gate is None:
             return matched
