@@ -572,6 +572,12 @@ def _add_tracking_commands(sub) -> None:
     ):
         tr.add_argument(flag, type=kind, help=what)
     tr.add_argument(
+        "--velocity-dofs",
+        choices=choices.VELOCITY_DOFS,
+        help="DOFs of the constant-velocity prediction: the root's translation and angles (root, default), "
+        "its translation only (translation), or every DOF (all)",
+    )
+    tr.add_argument(
         "--proposal",
         choices=choices.PROPOSALS,
         help="detection-driven pose of icondensation / iapf and of re-initialisations: auto (keypoint IK, else "
