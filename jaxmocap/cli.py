@@ -561,7 +561,11 @@ def _add_tracking_commands(sub) -> None:
         "--bvh-units", choices=("cm", "m"), default=None, help="length unit of track.bvh (default cm)"
     )
     for flag, kind, what in (
-        ("--velocity", float, "damping of the root's constant-velocity prediction (default 0.5; 0 = none)"),
+        (
+            "--velocity",
+            float,
+            "damping of the constant-velocity prediction of --velocity-dofs (default 0.5; 0 = none)",
+        ),
         ("--diffusion-scale", float, "factor on the per-DOF diffusion (default 1)"),
         ("--survival-target", float, "annealing survival rate alpha (default 0.5)"),
         ("--samples", int, "silhouette samples per view of the coverage cue (default 128)"),
