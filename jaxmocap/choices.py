@@ -28,6 +28,9 @@ PARTITIONED = ("partitioned", "hierarchical")
 FOREGROUNDS = ("auto", "mask", "plate", "median", "mog2", "adaptive", "none")
 #: Detection-driven poses of ICONDENSATION / IAPF and of re-initialisations (``--proposal``).
 PROPOSALS = ("auto", "head-hands")
+#: DOFs of the tracker's constant-velocity prediction (``--velocity-dofs``): the root's translation, all of the
+#: root's DOFs, every DOF.
+VELOCITY_DOFS = ("translation", "root", "all")
 #: β rules of the annealed filters (``--annealing``).
 ANNEALINGS = ("auto", "iros2007")
 #: 2D pose detectors of videos given without keypoints (``--detector``; :mod:`jaxmocap.io.detect`).

@@ -561,7 +561,11 @@ def _add_tracking_commands(sub) -> None:
         "--bvh-units", choices=("cm", "m"), default=None, help="length unit of track.bvh (default cm)"
     )
     for flag, kind, what in (
-        ("--velocity", float, "damping of the root's constant-velocity prediction (default 0.5; 0 = none)"),
+        (
+            "--velocity",
+            float,
+            "damping of the constant-velocity prediction of --velocity-dofs (default 0.5; 0 = none)",
+        ),
         ("--diffusion-scale", float, "factor on the per-DOF diffusion (default 1)"),
         ("--survival-target", float, "annealing survival rate alpha (default 0.5)"),
         ("--samples", int, "silhouette samples per view of the coverage cue (default 128)"),
@@ -571,6 +575,12 @@ def _add_tracking_commands(sub) -> None:
         ("--reinit-widen", float, "spread of a re-initialisation, times the diffusion (default 3)"),
     ):
         tr.add_argument(flag, type=kind, help=what)
+    tr.add_argument(
+        "--velocity-dofs",
+        choices=choices.VELOCITY_DOFS,
+        help="DOFs of the constant-velocity prediction: the root's translation and angles (root, default), "
+        "its translation only (translation), or every DOF (all)",
+    )
     tr.add_argument(
         "--proposal",
         choices=choices.PROPOSALS,

@@ -37,6 +37,11 @@ Every (rig, clip, seed) run and every baseline is saved under ``--work`` as soon
 is rewritten after each: a rerun with the same ``--work`` resumes where the last one stopped.
 
     python benchmarks/experiments/accuracy_default.py [--seeds 5] [--size 320x240] [--work DIR] [--quick]
+        [--rigs RIG …] [--clips WORD …] [--set FIELD=VALUE …]
+
+Experiments: ``--clips`` (clips whose names start with the words) and ``--set`` (a :class:`TrackOptions` field
+set otherwise; the runs are kept apart under ``--work``, one folder per set of options) print their tables and
+leave the results file alone.
 
 Writes ``benchmarks/results/accuracy_default.md`` (not with ``--quick``: one clip, one seed, 8 frames at 160×120,
 the stereo rig, printed only).
@@ -171,24 +176,32 @@ def baseline(seq: pathlib.Path, path: pathlib.Path) -> None:
     save_atomic(path, errors=err, views=views[gt_frames])
 
 
-def track(seq: pathlib.Path, out: pathlib.Path, seed: int, path: pathlib.Path) -> None:
-    """Track ``seq`` with the default options (``seed``), score it, save errors (mm) and speed to ``path``."""
+def track(
+    seq: pathlib.Path, out: pathlib.Path, seed: int, path: pathlib.Path, options: dict | None = None
+) -> None:
+    """Track ``seq`` with the default options (``seed``; ``options``: fields of :class:`TrackOptions` set otherwise,
+    ``--set``), score it, save errors (mm) and speed to ``path``."""
     source = SequenceSource(seq, recording=True)
     load = os.getloadavg()[0]
     try:
         t0 = time.monotonic()
-        summary = Tracker(source, out, TrackOptions(seed=seed, overwrite=True), quiet=True).run()
+        opts = TrackOptions(**{**(options or {}), "seed": seed, "overwrite": True})
+        summary = Tracker(source, out, opts, quiet=True).run()
         wall = time.monotonic() - t0
     finally:
         source.close()
     gt_frames, gt = metrics.load_groundtruth(seq)
     row = {int(f): i for i, f in enumerate(gt_frames)}
 
+    tracked = np.full(gt.shape, np.nan)  # (T, 15, 3) the tracked joints, kept for analyses of the runs
+
     def errors(name):
         frames, joints = metrics.load_prediction(out / name)
         e = np.full(gt.shape[:2], np.nan)
         for f, j in zip(frames, joints, strict=True):
             e[row[int(f)]] = metrics.joint_errors(j, gt[row[int(f)]])
+            if name == "poses.npz":
+                tracked[row[int(f)]] = j
         return e
 
     smoothed = (
@@ -197,7 +210,9 @@ def track(seq: pathlib.Path, out: pathlib.Path, seed: int, path: pathlib.Path) -
         else np.full(gt.shape[:2], np.nan)
     )
     save_atomic(
-        path, errors=errors("poses.npz"), smoothed=smoothed, fps=float(summary.get("frames_per_s") or np.nan),
+        path, errors=errors("poses.npz"), smoothed=smoothed, joints=tracked,
+        states=np.load(out / "poses.npz")["state"], lost=int(summary.get("lost_frames") or 0),
+        reinit=int(summary.get("reinitialisations") or 0), fps=float(summary.get("frames_per_s") or np.nan),
         first_frame_s=float(summary.get("first_frame_s") or np.nan), wall_s=wall, load=load,
         load_end=os.getloadavg()[0], summary=json.dumps(summary, default=str),
     )  # fmt: skip
@@ -220,13 +235,15 @@ def fmt(s) -> str:
     return " / ".join("—" if not np.isfinite(x) else f"{x:.1f}" for x in s)
 
 
-def load_units(work: pathlib.Path, rig: str, clips, seeds: int):
-    """``{clip name: (baseline npz or None, [run npz, …])}`` of what is saved for ``rig``."""
+def load_units(work: pathlib.Path, rig: str, clips, seeds: int, variant: str | None = None):
+    """``{clip name: (baseline npz or None, [run npz, …])}`` of what is saved for ``rig`` (the runs of the
+    default options, or of ``variant``: :func:`variant_name`)."""
     out = {}
     for clip in clips:
         d = work / "units" / rig / key(clip[0])
         b = d / "triangulation.npz"
-        runs = [np.load(d / f"seed{s}.npz") for s in range(seeds) if (d / f"seed{s}.npz").exists()]
+        r = d if variant is None else d / "variants" / variant
+        runs = [np.load(r / f"seed{s}.npz") for s in range(seeds) if (r / f"seed{s}.npz").exists()]
         out[clip[0]] = (np.load(b) if b.exists() else None, runs)
     return out
 
@@ -309,13 +326,18 @@ def rig_report(rig: str, units: dict) -> tuple[str, dict]:
     return "\n".join(lines), head
 
 
-def report(work: pathlib.Path, rigs, clips, seeds: int, size: str, command: str, reading: str = "") -> str:
-    """The results file's text from what is saved under ``work`` (``reading``: a paragraph after the goals)."""
+def report(
+    work: pathlib.Path, rigs, clips, seeds: int, size: str, command: str, reading: str = "", variant=None
+) -> str:
+    """The results file's text from what is saved under ``work`` (``reading``: a paragraph after the goals;
+    ``variant``: the runs of options set otherwise, :func:`variant_name`)."""
     parts, heads = [], {}
     for rig in rigs:
-        md, heads[rig] = rig_report(rig, load_units(work, rig, clips, seeds))
+        md, heads[rig] = rig_report(rig, load_units(work, rig, clips, seeds, variant))
         parts.append(md)
-    seed_counts = sorted({len(r) for rig in rigs for _, r in load_units(work, rig, clips, seeds).values()})
+    seed_counts = sorted(
+        {len(r) for rig in rigs for _, r in load_units(work, rig, clips, seeds, variant).values()}
+    )
     goal = [
         "| rig | goal | tracker mean, 15 joints | frames/s (median) | error goal | speed goal | "
         "tracker vs triangulation, 14 joints: mean; median |",
@@ -377,6 +399,39 @@ def report(work: pathlib.Path, rigs, clips, seeds: int, size: str, command: str,
 # ---------------------------------------------------------------------------------------------------------------
 
 
+def parse_set(items) -> dict:
+    """``["velocity=0.8", "cues=foreground,keypoints:8"]`` → ``{"velocity": 0.8, "cues": "foreground,…"}``: fields
+    of :class:`TrackOptions` with their values converted to the field's type (:func:`option_types`)."""
+    from jaxmocap.tracking.options import option_types
+
+    types, out = option_types(), {}
+    for item in items or ():
+        name, eq, value = item.partition("=")
+        if not eq or name not in types or name in ("seed", "overwrite"):
+            raise ValueError(
+                f"--set {item!r}: expected FIELD=VALUE with a field of TrackOptions but seed/overwrite"
+            )
+        kind = types[name]
+        if kind is bool:
+            out[name] = value.lower() in ("1", "true", "yes")
+        elif kind in (int, float):
+            out[name] = kind(value)
+        elif kind == "particles":
+            out[name] = int(value)
+        else:
+            out[name] = value
+    return out
+
+
+def variant_name(options: dict) -> str | None:
+    """The folder name of the runs of ``options`` (None: the defaults): ``velocity=0.8,filter=iapf`` made safe."""
+    if not options:
+        return None
+    return "".join(
+        c if c.isalnum() or c in "=.-" else "_" for c in ",".join(f"{k}={v}" for k, v in options.items())
+    )
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=5, help="seeds per clip and rig (default 5)")
@@ -391,11 +446,30 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--quick", action="store_true", help="one clip, one seed, 8 frames at 160x120, stereo; prints"
     )
+    ap.add_argument(
+        "--clips", nargs="+", default=None,
+        help="only the clips whose names start with these words (e.g. turn crouch); prints, writes no results file",
+    )  # fmt: skip
+    ap.add_argument(
+        "--set", action="append", default=[], metavar="FIELD=VALUE",
+        help="a TrackOptions field set otherwise (repeatable; e.g. --set velocity=0.8 --set 'cues=foreground,"
+        "keypoints:8'): runs kept apart under --work; prints, writes no results file",
+    )  # fmt: skip
     a = ap.parse_args(argv)
     if a.seeds < 1:
         ap.error("--seeds must be at least 1")
+    try:
+        options = parse_set(a.set)
+    except ValueError as e:
+        ap.error(str(e))
+    variant = variant_name(options)
     compilation_cache.enable()
     clips = [c for c in CLIPS if c[2] == "demo" or pathlib.Path(c[2]).is_file()]
+    if a.clips:
+        clips = [c for c in clips if any(c[0].startswith(w) for w in a.clips)]
+        if not clips:
+            ap.error(f"no clip starts with {' or '.join(a.clips)}")
+    partial = bool(a.clips or options)  # a partial run prints its table and leaves the results file alone
     if a.quick:
         clips, a.seeds, a.size, a.rigs = clips[:1], 1, "160x120", ["stereo"]
     if a.work:
@@ -407,6 +481,9 @@ def main(argv=None) -> int:
     command = f"python {common.script(__file__)} --seeds {a.seeds}" + (
         f" --size {a.size}" if a.size != "320x240" else ""
     )
+    if partial:
+        command += f" --rigs {' '.join(a.rigs)}" + "".join(f" --set '{s}'" for s in a.set)
+        command += f" --clips {' '.join(a.clips)}" if a.clips else ""
     log = lambda s: print(s, file=sys.stderr, flush=True)  # noqa: E731
     for rig in a.rigs:  # sequences and baselines first: cheap, and the tracker runs then only track
         for clip in clips:
@@ -420,17 +497,20 @@ def main(argv=None) -> int:
         for rig in a.rigs:
             for clip in clips:
                 d = work / "units" / rig / key(clip[0])
+                if variant is not None:
+                    d = d / "variants" / variant
+                    d.mkdir(parents=True, exist_ok=True)
                 if (d / f"seed{s}.npz").exists():
                     continue
                 t0 = time.monotonic()
-                track(work / "sequences" / rig / key(clip[0]), work / "track", s, d / f"seed{s}.npz")
+                track(work / "sequences" / rig / key(clip[0]), work / "track", s, d / f"seed{s}.npz", options)
                 r = np.load(d / f"seed{s}.npz")
                 log(f"{rig} {clip[0]} seed {s}: {np.nanmean(r['errors']):.1f} mm, {float(r['fps']):.1f} frames/s, "
                     f"{time.monotonic() - t0:.0f} s")  # fmt: skip
-                if not a.quick:
+                if not a.quick and not partial:
                     RESULTS.write_text(report(work, a.rigs, clips, a.seeds, a.size, command, READING))
-    md = report(work, a.rigs, clips, a.seeds, a.size, command, "" if a.quick else READING)
-    if not a.quick:
+    md = report(work, a.rigs, clips, a.seeds, a.size, command, "" if a.quick or partial else READING, variant)
+    if not a.quick and not partial:
         RESULTS.write_text(md)
     elif not a.work:
         shutil.rmtree(work, ignore_errors=True)

@@ -2,7 +2,8 @@
 
 :class:`TrackingLoop` drives a setup (:class:`jaxmocap.tracking.setup.TrackSetup` or PARSEC's): per frame, the key
 is ``fold_in(key(seed), frame)`` (never carried), so that a resumed run reproduces an uninterrupted one; a damped
-constant-velocity prediction of the root translation, the filter step (jitted **once**, with the filter as an
+constant-velocity prediction of the root (its translation, and by default its angles:
+``TrackOptions.velocity_dofs``) with full turns of the heading taken out (:func:`unwind`), the filter step (jitted **once**, with the filter as an
 argument, so that its data — diffusion std, schedule values, the likelihood's cue weights and λ — are not constants
 of the program: ``trace_count`` stays 1),
 track-loss detection and re-initialisation, and incremental outputs (:mod:`jaxmocap.io.export`) with a resume
@@ -61,6 +62,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxmocap.choices import VELOCITY_DOFS
 from jaxmocap.errors import MocapInputError
 from jaxmocap.eval.mixtures import count_layer_modes
 from jaxmocap.filters.base import State
@@ -354,8 +356,9 @@ class TrackingLoop:
         setup, o = self.setup, self.o
         model = setup.model
         dt = model.offset.dtype
-        trans = np.zeros(model.num_dofs, bool)
-        trans[root_translation_dofs(model)] = True
+        moving = velocity_dofs(model, getattr(o, "velocity_dofs", "translation"))
+        circ = getattr(self.filter, "circular", None)
+        circular = np.zeros(model.num_dofs, bool) if circ is None else np.asarray(circ, bool)
         frames = setup.frames
         stats = {"reinitialisations": 0, "lost_frames": 0, "skipped": 0, "first_frame_s": None}
         t_begin = time.monotonic()
@@ -420,11 +423,14 @@ class TrackingLoop:
                 no_person = no_person or unseen
                 if centre is not None:
                     tobs = tobs._replace(centre=jnp.asarray(centre, jnp.float32), valid=jnp.asarray(True))
-                # damped constant-velocity prediction of the root translation
+                # damped constant-velocity prediction of the DOFs of ``velocity_dofs``
                 hist = loss.hist
                 if len(hist) == 2 and hist[0][0] == t - 2 and hist[1][0] == t - 1 and setup.velocity > 0:
-                    v = np.where(trans, hist[1][1] - hist[0][1], 0.0) * setup.velocity
+                    step = angle_difference(hist[1][1], hist[0][1], circular)
+                    v = np.where(moving, step, 0.0) * setup.velocity
                     state = state._replace(particles=state.particles + jnp.asarray(v, dt))
+                if circular.any():  # full turns taken out: a turning body never meets its angle's limits
+                    state = state._replace(particles=unwind(state.particles, jnp.asarray(circular)))
                 if not self._compiled:  # a resumed run compiles at its first readable frame
                     self._compile(t, state, tobs)
                 state, info, joints = self._step(self.filter, self._key(t), state, tobs)
@@ -603,6 +609,41 @@ class TrackingLoop:
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
         return paths
+
+
+def velocity_dofs(model, which: str = "translation") -> np.ndarray:
+    """``(D,)`` bool: the DOFs of the constant-velocity prediction (``TrackOptions.velocity_dofs``):
+    ``translation`` the root's translation, ``root`` all of the root's DOFs (its heading and tilts too), ``all``
+    every DOF."""
+    out = np.zeros(model.num_dofs, bool)
+    if which == "all":
+        out[:] = True
+    elif which == "root":
+        out[list(model.topology.segment_dofs[0])] = True
+    elif which == "translation":
+        out[root_translation_dofs(model)] = True
+    else:
+        raise ValueError(f"unknown velocity_dofs {which!r}; choose one of {', '.join(VELOCITY_DOFS)}")
+    return out
+
+
+def angle_difference(a: np.ndarray, b: np.ndarray, circular: np.ndarray) -> np.ndarray:
+    """``a − b`` ``(D,)``, the entries flagged ``circular`` wrapped into ``[−π, π)`` (a heading going from 179° to
+    −179° turned by 2°, not by −358°)."""
+    d = np.asarray(a, np.float64) - np.asarray(b, np.float64)
+    return np.where(circular, np.mod(d + np.pi, 2 * np.pi) - np.pi, d)
+
+
+@jax.jit
+def unwind(particles: jnp.ndarray, circular: jnp.ndarray) -> jnp.ndarray:
+    """``particles (N, D)`` with each DOF flagged ``circular`` (``(D,)`` bool; a full-turn angle such as the root's
+    heading) moved by the multiple of 2π, ``2π k`` with ``k = round(x̄ / 2π)`` (the same for every particle: the set
+    stays in one piece), that brings the particles' mean ``x̄`` into ``[−π, π]``. Such an angle's limits are
+    ``±2π`` and the diffusion clips at them: without this a body that keeps turning one way would be held at the
+    limit after at most two turns (less, from a start near ±π)."""
+    two_pi = jnp.asarray(2 * np.pi, particles.dtype)
+    k = jnp.where(circular, jnp.round(jnp.mean(particles, axis=0) / two_pi), 0.0)
+    return particles - two_pi * k
 
 
 class _Failed:

@@ -34,6 +34,7 @@ __all__ = [
     "FILTERS",
     "FOREGROUNDS",
     "GRADIENT_FILTERS",
+    "KEYPOINTS_WEIGHT",
     "MODELS",
     "TrackOptions",
     "build_model",
@@ -125,17 +126,26 @@ def default_layers(filter_name: str) -> tuple[int, int]:
     return apf, apf
 
 
+#: Weight of the default ``keypoints`` cue. Its energy per view is a mean of bounded Geman–McClure terms (at most
+#: 1, σ = 20 px), while the silhouette cues cannot tell a body from the same body turned by 180°: at weight 1 the
+#: track of a fast turn fell up to 200° behind the body and stayed facing backwards (four cameras, 300° in 2 s).
+#: 32 (with the root's angles in the velocity prediction) measured best of 1, 8, 16, 32 and 64 on the synthetic
+#: four-camera turn and crouch, and lowered the error of the other four-camera clips and of the stereo turn and
+#: crouch, not of the stereo walk (``benchmarks/results/accuracy_default.md``, the experiments section).
+KEYPOINTS_WEIGHT = 32.0
+
+
 def default_cues(model_name: str, has_depth: bool, has_keypoints: bool) -> tuple[tuple[str, float], ...]:
     """``(name, weight)`` of the default cues: silhouette (``foreground``), edges (``edge_distance``), the
     silhouette coverage term (weight 4: with a one-pixel ``d_max`` it balances the foreground cue's preference for a
     model that shrinks into the silhouette; chosen on the demo sequence, see ``benchmarks/results/demo_table.txt``),
     ``depth`` when the input has depth maps (full body only: Li & Kulić's cue), and the 2D ``keypoints`` when
-    there are detections."""
+    there are detections, weight :data:`KEYPOINTS_WEIGHT`."""
     out = [("foreground", 1.0), ("edge_distance", 1.0), ("coverage", 4.0)]
     if has_depth and model_name == "full25":
         out.append(("depth", 1.0))
     if has_keypoints:
-        out.append(("keypoints", 1.0))
+        out.append(("keypoints", KEYPOINTS_WEIGHT))
     return tuple(out)
 
 
@@ -182,7 +192,10 @@ class TrackOptions:
     ``seed``: frame ``t`` uses the key ``fold_in(key(seed), t)``; ``frames``: ``"A:B"``; ``init``: ``groundtruth``,
     ``ik``, a file, or ``auto``; ``foreground``/``downsample``/``samples``: :class:`FeatureBuilder`;
     ``velocity``: damping ``k`` of the constant-velocity prediction ``x_root += k (x̂_{t−1} − x̂_{t−2})`` (0 =
-    random walk only); ``diffusion_scale``: multiplies :func:`diffusion_std`; ``survival_target``: α of
+    random walk only), applied to the DOFs of ``velocity_dofs`` (``root``: the root's translation and angles, so
+    that a turning body's heading is predicted to go on turning; ``translation``: the translation only, as before
+    2026-11; ``all``: every DOF; angle steps of full-turn DOFs wrapped into [−π, π));
+    ``diffusion_scale``: multiplies :func:`diffusion_std`; ``survival_target``: α of
     Deutscher's rule; ``loss_*``/``reinit_widen``: track loss (module docstring); ``on_bad_frame``: ``skip`` or
     ``stop``; ``overlay``: MP4 per view; ``resume``/``overwrite``: what to do with a previous run in the output
     folder; ``fsync``: ``fsync`` every rewrite; ``smooth`` (``butterworth[:CUTOFF_HZ]`` or ``none``) and
@@ -218,6 +231,7 @@ class TrackOptions:
     foreground: str = "auto"
     downsample: int = 1
     velocity: float = 0.5
+    velocity_dofs: str = "root"
     diffusion_scale: float = 1.0
     survival_target: float = 0.5
     samples: int = 128
@@ -296,6 +310,7 @@ _IDENTITY_DEFAULTS = {
     "dynamics_fraction": None,
     "detection_fraction": None,
     "detector": "auto",
+    "velocity_dofs": "translation",
 }
 
 

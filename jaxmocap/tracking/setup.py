@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmocap.choices import ANNEALINGS, DETECTORS, PROPOSALS, parse_frames
+from jaxmocap.choices import ANNEALINGS, DETECTORS, PROPOSALS, VELOCITY_DOFS, parse_frames
 from jaxmocap.errors import MocapInputError
 from jaxmocap.filters.annealing import Schedule
 from jaxmocap.filters.factory import GRADIENT_FILTERS, make_filter, partition_counts
@@ -201,6 +201,10 @@ class TrackSetup:
         self._check_camera_order()
         if o.proposal not in PROPOSALS:
             raise ValueError(f"unknown proposal {o.proposal!r}; choose one of {', '.join(PROPOSALS)}")
+        if o.velocity_dofs not in VELOCITY_DOFS:
+            raise ValueError(
+                f"unknown velocity_dofs {o.velocity_dofs!r}; choose one of {', '.join(VELOCITY_DOFS)}"
+            )
         if o.annealing not in ANNEALINGS:
             raise ValueError(f"unknown annealing {o.annealing!r}; choose one of {', '.join(ANNEALINGS)}")
         if o.detector not in DETECTORS:
@@ -286,7 +290,7 @@ class TrackSetup:
 
     @property
     def velocity(self) -> float:
-        """Damping of the constant-velocity prediction of the root translation (0: none)."""
+        """Damping of the constant-velocity prediction (0: none) of the DOFs of ``velocity_dofs``."""
         return float(self.o.velocity)
 
     # -- likelihood ---------------------------------------------------------------------------------------------
