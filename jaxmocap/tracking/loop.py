@@ -34,7 +34,10 @@ filter and state of the right structure (``setup.compile_arguments(key, observat
 needs the initial pose, e.g. colour references); the first call of the step then finds it compiled.
 
 **Track loss.** ``q_t = −max_i log p(z | x_i)`` of the last layer (the energy of the best particle) is compared
-with its median ``q_ref`` over the first frames after the initialisation: the track is lost when
+with its median ``q_ref`` over the first frames after the initialisation or the last re-initialisation (the
+reference is learnt again on every new track: the detections' noise, and with it the keypoint energy, may change
+over a sequence, and a reference learnt on the first frames alone had a stereo walk re-initialised from its
+detections every third frame once that energy had risen fourfold): the track is lost when
 ``q_t > loss_ratio · q_ref`` for ``loss_frames`` consecutive frames, when the filter found no finite weight
 (``Info.recovered``), or when no view shows any foreground (no person) or the setup's detector sees nobody
 (``setup.person_absent(fd)``, the head-and-hands proposal; the quality reference is then learnt again, and the first
@@ -105,6 +108,12 @@ class LossTracker:
         s = copy.copy(self)
         s.q_hist, s.hist = list(self.q_hist), list(self.hist)
         return s
+
+    def new_track(self) -> None:
+        """The filter was re-initialised: no run of bad frames, no velocity, and the quality reference learnt
+        again over the next ``loss_window`` frames (module docstring)."""
+        self.lost_run, self.hist = 0, []
+        self.q_ref, self.q_hist = float("nan"), []
 
     def bad_quality(self, q: float) -> bool:
         """Update the reference with ``q`` and tell whether ``q`` is bad; counts the run of bad frames."""
@@ -462,8 +471,7 @@ class TrackingLoop:
                                 jnp.asarray(o.reinit_widen * setup.std, dt),
                             )
                             stats["reinitialisations"] += 1
-                            loss.lost_run = 0
-                            loss.hist = []
+                            loss.new_track()
                         else:
                             loss.hist = [*loss.hist, (t, est)][-2:]
                     else:

@@ -10,8 +10,8 @@ import pytest
 
 from jaxmocap.filters.factory import make_filter
 from jaxmocap.geometry import body
-from jaxmocap.tracking.loop import angle_difference, unwind, velocity_dofs
-from jaxmocap.tracking.options import diffusion_std
+from jaxmocap.tracking.loop import LossTracker, angle_difference, unwind, velocity_dofs
+from jaxmocap.tracking.options import TrackOptions, diffusion_std
 
 
 @pytest.fixture(scope="module")
@@ -102,3 +102,21 @@ def test_a_body_turning_past_its_heading_limits_is_followed(model):
 
     assert abs(run(True)) < 0.1
     assert run(False) == pytest.approx(2 * np.pi - 8.0, abs=0.15)
+
+
+def test_a_new_track_learns_its_quality_reference_again():
+    """Track-loss bookkeeping: the reference is the median of the first ``loss_window`` energies; an energy above
+    ``loss_ratio`` times it is bad, and ``loss_frames`` bad frames in a row make a loss. After a re-initialisation
+    (``new_track``) the reference is learnt again: energies four times the old reference are then the new normal,
+    not a loss every third frame."""
+    o = TrackOptions(loss_ratio=2.5, loss_frames=3, loss_window=5)
+    loss = LossTracker(o)
+    for q in (1.0, 1.2, 0.9, 1.1, 1.0):  # the reference: their median, 1.0
+        assert not loss.bad_quality(q)
+    assert loss.q_ref == 1.0
+    assert [loss.bad_quality(q) for q in (4.0, 4.2, 3.9)] == [True, True, True] and loss.lost_run == 3
+    loss.new_track()
+    assert loss.lost_run == 0 and loss.hist == [] and np.isnan(loss.q_ref)
+    assert not any(loss.bad_quality(q) for q in (4.0, 4.4, 3.8, 4.1, 4.2, 4.5, 3.9))
+    assert loss.q_ref == 4.1  # the median of the five energies after the new start
+    assert loss.bad_quality(10.5)  # 2.5 × 4.1 = 10.25
