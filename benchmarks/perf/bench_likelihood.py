@@ -199,11 +199,10 @@ def chunks_side_by_side(rounds: int) -> None:
             for r in range(rounds):
                 t = {}
                 for name, f in (("pad", pad), ("equal", equal))[:: 1 if r % 2 else -1]:
-                    f(X, obs).block_until_ready()
-                    t0 = time.perf_counter()
-                    for _ in range(5):
-                        f(X, obs).block_until_ready()
-                    t[name] = time.perf_counter() - t0
+                    calls = common.timed_calls(
+                        lambda f=f, X=X, o=obs: f(X, o).block_until_ready(), 5, warmup=1
+                    )
+                    t[name] = float(calls.wall.sum())
                 ratios.append(t["pad"] / t["equal"])
             text = ", ".join(f"{q:.2f}" for q in ratios)
             print(

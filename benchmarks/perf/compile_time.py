@@ -197,11 +197,8 @@ def codegen_rows(lowered, args, rounds: int = 9) -> dict:
     runs = {name: [] for name in compiled}
     for r in range(rounds):
         for name in sorted(compiled, reverse=r % 2 == 1):  # the order alternating
-            jax.block_until_ready(compiled[name](*args))
-            t0 = time.perf_counter()
-            for _ in range(3):
-                jax.block_until_ready(compiled[name](*args))
-            runs[name].append((time.perf_counter() - t0) / 3)
+            call = lambda f=compiled[name]: jax.block_until_ready(f(*args))  # noqa: E731
+            runs[name].append(float(common.timed_calls(call, 3, warmup=1).wall.mean()))
     for name, t in runs.items():
         out[f"{name}_run_s"] = float(np.median(t))
     for name in ("classic", "suite"):
