@@ -130,8 +130,8 @@ def default_layers(filter_name: str) -> tuple[int, int]:
 #: 1, σ = 20 px), while the silhouette cues cannot tell a body from the same body turned by 180°: at weight 1 the
 #: track of a fast turn fell up to 200° behind the body and stayed facing backwards (four cameras, 300° in 2 s).
 #: 32 (with the root's angles in the velocity prediction) measured best of 1, 8, 16, 32 and 64 on the synthetic
-#: four-camera turn and crouch, and lowered the error of the other four-camera clips and of the stereo turn and
-#: crouch, not of the stereo walk (``benchmarks/results/accuracy_default.md``, the experiments section).
+#: four-camera turn and crouch, and lowered the error of the other four-camera clips and of every stereo clip but
+#: the crouch (``benchmarks/results/accuracy_default.md``: its tables and its experiments section).
 KEYPOINTS_WEIGHT = 32.0
 
 
