@@ -6,13 +6,18 @@ Input: per frame and view, the detected persons as evaluation-joint keypoints ``
 
 **Multi-view persons** (:func:`multiview_persons`). Per frame: every pair of detections in two views is
 triangulated (DLT on undistorted points, joints of confidence > ``c_min`` in both) and kept as a seed when both
-reproject within ``τ_v`` of their detections (the median over joints; ``τ_v = 2 %`` of the view's larger image
-side, 38 px for 1920 px); the seed is extended by the detection of each other view that lies within ``τ_v`` of the
-seed's projection, re-triangulated from all of them, and the seed with the most views (then the smallest mean
+reproject within ``τ_v`` of their detections (the median over joints; ``τ_v = 3 %`` of the view's larger image
+side, 58 px for 1920 px, 9.6 px for 320 px); the seed is extended by the detection of each other view that lies within ``τ_v`` of the
+seed's projection, re-triangulated from all of them (a joint whose rays meet behind a camera has no triangulation
+and is left out), and the seed with the most views (then the smallest mean
 ``residual / τ``) is a person; its detections are taken out and the search repeats.
 
 **Subject** (:func:`select_subject`). The persons of consecutive frames are linked into tracks (nearest centre, the
-mean of the triangulated joints, within ``0.5 m + 3 m/s · Δt``); the subject is the track seen in the most views
+median of the triangulated joints, within ``0.5 m + 3 m/s · Δt`` across the cameras' lines of sight,
+:meth:`ViewGeometry.lateral_distance`: a pair of close cameras triangulates depth poorly — the centre of the
+demo's walk, 0.3 m baseline at 320×240, moved by up to 2 m along the rays from one frame to the next — so a 3D gate
+split the subject into short tracks and left the first 12–23 frames of two of three demo seeds without
+detections); the subject is the track seen in the most views
 over the recording (Σ views over its frames): the person whose detections triangulate consistently across cameras
 and who stays in view, not the first person of each file. Joints the subject's detection in a view misses are
 taken from another detection of that view lying on the subject's triangulated joints (a detector that split the
@@ -104,6 +109,27 @@ class ViewGeometry:
         X[np.sum(w, axis=0) < 2] = np.nan
         return X
 
+    def in_front(self, views: list[int], X: np.ndarray) -> np.ndarray:
+        """``(J,)``: whether each joint of ``X (J, 3)`` lies in front of every camera of ``views`` (False where
+        ``X`` is not finite)."""
+        ok = np.all(np.isfinite(X), axis=1)
+        Xf = np.where(ok[:, None], X, 0.0)
+        for v in views:
+            ok &= Xf @ self.P[v, 2, :3] + self.P[v, 2, 3] > 1e-6
+        return ok
+
+    def lateral_distance(self, a: np.ndarray, b: np.ndarray) -> float:
+        """The distance (m) between points ``a`` and ``b`` ``(3,)`` across the cameras' lines of sight: per camera,
+        the offset of ``b`` from ``a`` perpendicular to the camera's ray through their midpoint; the largest over
+        the cameras. Several cameras around a person bound every direction (the depth of one is across the ray of
+        another); a close pair leaves out the depth, which it triangulates poorly."""
+        R, t = self.P[:, :, :3], self.P[:, :, 3]
+        ray = (0.5 * (a + b)) @ R.transpose(0, 2, 1) + t  # (V, 3) midpoint in each camera's frame
+        ray /= np.linalg.norm(ray, axis=1, keepdims=True)
+        d = (b - a) @ R.transpose(0, 2, 1)  # (V, 3) the offset in each camera's frame
+        across = d - np.sum(d * ray, axis=1, keepdims=True) * ray
+        return float(np.max(np.linalg.norm(across, axis=1)))
+
     def joint_residuals(self, v: int, X: np.ndarray, ab: np.ndarray) -> np.ndarray:
         """``(J,)`` pixel distances between the projections of ``X (J, 3)`` into view ``v`` and ``ab (J, 3)``; inf
         where ``X`` is not finite, a detection has confidence ≤ ``C_MIN`` or a point is behind the camera."""
@@ -140,10 +166,11 @@ class Person(NamedTuple):
 def _person(geo: ViewGeometry, ab: list[np.ndarray], chosen: dict[int, int]) -> Person | None:
     views = sorted(chosen)
     X = geo.triangulate(views, np.stack([ab[v][chosen[v]] for v in views]))
+    X[~geo.in_front(views, X)] = np.nan  # no triangulation: rays that meet behind a camera
     if np.sum(np.all(np.isfinite(X), axis=1)) < MIN_JOINTS:
         return None
     score = {v: geo.residual(v, X, ab[v][chosen[v]]) / geo.tau[v] for v in views}
-    return Person(dict(chosen), X, score, np.nanmean(X, axis=0))
+    return Person(dict(chosen), X, score, np.nanmedian(X, axis=0))
 
 
 def multiview_persons(geo: ViewGeometry, dets: list[np.ndarray], max_seeds: int = 20) -> list[Person]:
@@ -217,9 +244,9 @@ def _completed(geo: ViewGeometry, v: int, X: np.ndarray, dets: np.ndarray, p: in
     return out
 
 
-def _link(persons: list[list[Person]], fps: float) -> list[dict[int, Person]]:
-    """Tracks ``{frame index: person}``: each frame's persons joined to the track whose last centre is nearest,
-    within ``0.5 m + 3 m/s · Δt``."""
+def _link(geo: ViewGeometry, persons: list[list[Person]], fps: float) -> list[dict[int, Person]]:
+    """Tracks ``{frame index: person}``: each frame's persons joined to the track whose last centre is nearest
+    across the cameras' lines of sight (:meth:`ViewGeometry.lateral_distance`), within ``0.5 m + 3 m/s · Δt``."""
     tracks: list[dict[int, Person]] = []
     for t, frame in enumerate(persons):
         pairs = []
@@ -227,7 +254,7 @@ def _link(persons: list[list[Person]], fps: float) -> list[dict[int, Person]]:
             last = max(tr)
             gate = 0.5 + 3.0 * (t - last) / fps
             for i, p in enumerate(frame):
-                d = float(np.linalg.norm(p.centre - tr[last].centre))
+                d = geo.lateral_distance(tr[last].centre, p.centre)
                 if d <= gate:
                     pairs.append((d, k, i))
         used_t, used_p = set(), set()
@@ -281,7 +308,7 @@ def select_subject(
         return out, {"persons": [], "subject_frames": 0, "views_per_frame": []}
     geo = ViewGeometry(rig)
     persons = [multiview_persons(geo, dets[t]) for t in range(T)]
-    tracks = _link(persons, fps)
+    tracks = _link(geo, persons, fps)
     report = {"persons": [len(p) for p in persons], "subject_frames": 0, "views_per_frame": [0] * T}
     if not tracks:
         return out, report

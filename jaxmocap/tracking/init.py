@@ -30,6 +30,7 @@ __all__ = [
     "move_root_over",
     "reinit_mean",
     "default_standing",
+    "warm_keypoint_pose",
     "rest_facing",
     "root_translation_dofs",
     "silhouette_centroid",
@@ -122,8 +123,13 @@ def keypoint_pose(
             Y[i] = targets[n]
     if np.sum(np.all(np.isfinite(Y), axis=1)) < 4:
         return None
+    # device_put, not jnp.asarray: a host array's conversion compiles a program of its own per shape, and the first
+    # re-initialisation from a previous pose (the only call with ``init``) would compile it on a new frame
+    dt = np.dtype(model.offset.dtype)
     fit = ik.fit_pose(
-        model, jnp.asarray(Y, model.offset.dtype), init=None if init is None else jnp.asarray(init)
+        model,
+        jnp.asarray(Y, dt),
+        init=None if init is None else jax.device_put(np.asarray(init, dt)),
     )
     x = np.asarray(fit.state, np.float64)
     if not np.all(np.isfinite(x)):
@@ -258,6 +264,25 @@ def default_standing(model, rig: camera.Rig, distance: float = 3.0) -> np.ndarra
     axis[2] = 0.0
     axis /= max(np.linalg.norm(axis), 1e-9)
     return rest_facing(model, rig, centre + distance * axis)
+
+
+def warm_keypoint_pose(model, rig: camera.Rig, depth: bool = False) -> None:
+    """Compile the programs of :func:`keypoint_pose` (its first form, and the re-initialisation's, which starts from
+    a previous pose) by fitting the rest pose standing in front of the first camera (:func:`default_standing`),
+    projected into every view of ``rig`` (full-size pixels); ``depth``: with the frames' depth maps. A run whose
+    first pose came from elsewhere (the silhouettes, a file, the head and hands) but whose input has detections
+    calls it before its first frame, so that its first re-initialisation from detections compiles nothing."""
+    x = default_standing(model, rig)
+    dt = np.dtype(model.offset.dtype)
+    X = joint_positions(model, jax.device_put(x.astype(dt)))
+    uv = np.asarray(camera.project(rig.to_jax(jnp.float32), X), np.float64)  # (V, J, 2)
+    kp = np.zeros((rig.num_views, len(body_mod.EVAL_JOINTS), 3))
+    for name, k in KEYPOINT_OF.items():
+        if name in model.joint_names:
+            kp[:, k, :2], kp[:, k, 2] = uv[:, model.joint_names.index(name)], 1.0
+    maps = [np.zeros((1, 1), np.float32)] * rig.num_views if depth else None
+    first = keypoint_pose(model, rig, kp, depth=maps)
+    keypoint_pose(model, rig, kp, init=x if first is None else first, depth=maps)
 
 
 def check_initial(model: body_mod.BodyModel, source, init: str, t0: int) -> None:

@@ -31,7 +31,16 @@ is queued.
 (the pose fit of :mod:`jaxmocap.tracking.init` compiles and runs programs of its own): XLA compiles independent
 programs side by side on two cores, and the step depends on the initial pose only through data. The setup gives a
 filter and state of the right structure (``setup.compile_arguments(key, observation)``; None where the structure
-needs the initial pose, e.g. colour references); the first call of the step then finds it compiled.
+needs the initial pose, e.g. colour references); the first call of the step then finds it compiled. A setup whose
+input has detections but whose first pose came from elsewhere compiles the re-initialisation from detections in
+a third thread (``setup.warm_reinit(how)``), joined before the first frame.
+
+**No frame compiles.** Every frame has the first one's shapes, and whatever runs per frame is compiled once (the
+prediction is one program, :func:`predict`; host arrays go to the device by ``jax.device_put``, since
+``jnp.asarray`` of a host array compiles a conversion per shape). The loop counts the programs its thread lowers
+(:class:`jaxmocap.tracking.compile_watch.CompileWatch`): a frame after the first that compiles has
+``compiled_programs`` in its record, the summary has their total (``compiled_after_first_frame``, 0), and the run
+warns.
 
 **Track loss.** ``q_t = −max_i log p(z | x_i)`` of the last layer (the energy of the best particle) is compared
 with its median ``q_ref`` over the first frames after the initialisation or the last re-initialisation (the
@@ -73,6 +82,7 @@ from jaxmocap.filters.factory import particles_text
 from jaxmocap.io import export
 from jaxmocap.io.sources import BadFrame
 from jaxmocap.tracking import interrupts, outputs, resources, run_folder
+from jaxmocap.tracking.compile_watch import CompileWatch
 from jaxmocap.tracking.init import root_translation_dofs
 from jaxmocap.tracking.progress import CompileNotice, Progress, warn
 
@@ -153,7 +163,7 @@ class TrackingLoop:
         self.summary = None
         self.compile_s = None
         self._compiled = False
-        self._ahead = None
+        self._ahead = self._warm = None
         self.compiled_ahead = False
 
         joints_of = getattr(self.setup, "estimate_joints", None)
@@ -247,6 +257,17 @@ class TrackingLoop:
                 check(t)
             self._compile_ahead(t, obs[0])
             x0, spread, how = self.setup.initial_state(t, masks, obs[2])
+            warm = getattr(self.setup, "warm_reinit", None)
+            if warm is not None:  # joined once the step is compiled
+
+                def work(warm=warm, how=how):
+                    try:
+                        warm(how)
+                    except Exception:  # a re-initialisation then compiles, and raises what is wrong
+                        pass
+
+                self._warm = threading.Thread(target=work, name="jaxmocap-warm", daemon=True)
+                self._warm.start()
             return i, obs, skipped, np.asarray(x0, np.float64), spread, how
         raise MocapInputError(None, "no frame of the input could be read")
 
@@ -321,6 +342,8 @@ class TrackingLoop:
             t0 = frames[start]
             state = setup.start(self.filter, self._key(t0, 1), x0, spread, pending[0])
             self._compile(t0, state, pending[0])
+            if self._warm is not None:  # the re-initialisation's programs (``setup.warm_reinit``)
+                self._warm.join()
             p.update(start=start, pending=pending, skipped=skipped, x0=x0, how=how, state=state)
             p["loss"] = LossTracker(o, x0)
         else:
@@ -368,8 +391,15 @@ class TrackingLoop:
         moving = velocity_dofs(model, getattr(o, "velocity_dofs", "translation"))
         circ = getattr(self.filter, "circular", None)
         circular = np.zeros(model.num_dofs, bool) if circ is None else np.asarray(circ, bool)
+        circ = jax.device_put(circular)
         frames = setup.frames
-        stats = {"reinitialisations": 0, "lost_frames": 0, "skipped": 0, "first_frame_s": None}
+        stats = {
+            "reinitialisations": 0,
+            "lost_frames": 0,
+            "skipped": 0,
+            "first_frame_s": None,
+            "compiled_after_first_frame": 0,
+        }
         t_begin = time.monotonic()
         old, start, pending = p["ck"], p["start"], p["pending"]
         state, loss, how = p["state"], p["loss"], p["how"]
@@ -405,6 +435,7 @@ class TrackingLoop:
                 ck.update(*after, pose_writer.num_frames)
 
         flushed = False
+        watch = CompileWatch()  # the programs this thread compiles, frame by frame (none after the first)
         try:
             for i in range(start, len(frames)):
                 interrupts.check()
@@ -430,16 +461,18 @@ class TrackingLoop:
                 absent = getattr(setup, "person_absent", None)  # a detector that sees nobody
                 unseen = absent is not None and bool(absent(fd))
                 no_person = no_person or unseen
-                if centre is not None:
-                    tobs = tobs._replace(centre=jnp.asarray(centre, jnp.float32), valid=jnp.asarray(True))
-                # damped constant-velocity prediction of the DOFs of ``velocity_dofs``
+                if centre is not None:  # device_put: host arrays converted by jnp.asarray compile a program
+                    tobs = tobs._replace(
+                        centre=jax.device_put(np.asarray(centre, np.float32)), valid=jax.device_put(np.True_)
+                    )
+                # damped constant-velocity prediction of the DOFs of ``velocity_dofs`` (zero without two frames
+                # before), then full turns taken out: one program on every frame (:func:`predict`)
                 hist = loss.hist
+                v = np.zeros(model.num_dofs)
                 if len(hist) == 2 and hist[0][0] == t - 2 and hist[1][0] == t - 1 and setup.velocity > 0:
                     step = angle_difference(hist[1][1], hist[0][1], circular)
                     v = np.where(moving, step, 0.0) * setup.velocity
-                    state = state._replace(particles=state.particles + jnp.asarray(v, dt))
-                if circular.any():  # full turns taken out: a turning body never meets its angle's limits
-                    state = state._replace(particles=unwind(state.particles, jnp.asarray(circular)))
+                state = state._replace(particles=predict(state.particles, jax.device_put(v.astype(dt)), circ))
                 if not self._compiled:  # a resumed run compiles at its first readable frame
                     self._compile(t, state, tobs)
                 state, info, joints = self._step(self.filter, self._key(t), state, tobs)
@@ -490,11 +523,22 @@ class TrackingLoop:
                 )
                 if getattr(info, "layer_sets", None) is not None:  # --count-modes (López Méndez §5.2.1)
                     record["modes"] = count_layer_modes(*info.layer_sets, np.random.default_rng(t))
+                compiled = watch.take()
+                if (
+                    compiled and i > start
+                ):  # every frame has the first one's shapes: a compilation is a defect
+                    record["compiled_programs"] = compiled
+                    stats["compiled_after_first_frame"] += compiled
+                    if not self.quiet:
+                        warn(
+                            f"frame {t} compiled {compiled} program(s): please report it, with the command line"
+                        )
                 after = (t, state, loss.snapshot(), dict(stats)) if setup.resumable else None
                 writer.submit(functools.partial(write_frame, t, x, joints, record, after))
                 if stats["first_frame_s"] is None:
                     stats["first_frame_s"] = time.monotonic() - t_frame + (self.compile_s or 0.0)
                 progress.update(i + 1, "lost" if lost else "")
+            watch.close()
             interrupts.check()
             with interrupts.deferred():
                 writer.drain()
@@ -508,6 +552,7 @@ class TrackingLoop:
                 diag.close(summary)
                 run_folder.set_status(self.out, "complete")
         except BaseException as e:
+            watch.close()
             progress.end_line()
             stopped = isinstance(e, KeyboardInterrupt | interrupts.Terminated)
             with interrupts.deferred():
@@ -555,6 +600,7 @@ class TrackingLoop:
             "resumed_at": ending["resumed_at"],
             "compilations": self.trace_count,
             "compile_s": self.compile_s,
+            "compiled_after_first_frame": stats["compiled_after_first_frame"],
             "model": model.name,
             "filter": self.o.filter,
             "particles": setup.num_particles,
@@ -652,6 +698,14 @@ def unwind(particles: jnp.ndarray, circular: jnp.ndarray) -> jnp.ndarray:
     two_pi = jnp.asarray(2 * np.pi, particles.dtype)
     k = jnp.where(circular, jnp.round(jnp.mean(particles, axis=0) / two_pi), 0.0)
     return particles - two_pi * k
+
+
+@jax.jit
+def predict(particles: jnp.ndarray, step: jnp.ndarray, circular: jnp.ndarray) -> jnp.ndarray:
+    """The frame's prediction of ``particles (N, D)``: moved by ``step (D,)`` (the damped constant velocity, zero
+    where none), then :func:`unwind`; one compiled program, the same on every frame (an eager update would compile
+    its operations on the first frame that has a velocity)."""
+    return unwind(particles + step, circular)
 
 
 class _Failed:

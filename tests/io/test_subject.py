@@ -169,3 +169,40 @@ def test_body_dimensions_of_the_real_subject(rig):
     for k in ("upper_arm_length", "forearm_length", "thigh_length", "shin_length", "torso_length"):
         assert 0.2 < d[k] < 0.6, (k, d[k])
     assert d["shoulder_width"] > d["hip_width"] > 0.1 and d["hip_drop"] == 0.0
+
+
+def test_the_subject_of_a_close_stereo_pair_in_every_frame():
+    """Two cameras 0.3 m apart, 3.5 m from the subject (Pose2Sim's frame-0 joints walking sideways at 1.2 m/s),
+    320×240, detections with 4 px of Gaussian noise (fixed seed): such a pair triangulates a joint's depth to about
+    ±1 m, and some joints' rays meet behind the cameras. The subject is still one person seen by both cameras in
+    every frame (the joints without a triangulation left out; the frames linked across the lines of sight); linking
+    the frames by the 3D distance of the centres, with the person dropped where a ray met behind a camera, found
+    the subject in 15 of the 30 frames."""
+    from jaxmocap.geometry import camera
+    from jaxmocap.synth.stage import look_at
+
+    ref, _, _ = reference_joints(P2S / "S00_P00_T01_BalancingTrial_0-100.trc")
+    X0 = np.nan_to_num(ref[0])
+    c = X0.mean(axis=0)
+    K = np.array([[256.0, 0.0, 159.5], [0.0, 256.0, 119.5], [0.0, 0.0, 1.0]])
+    eye = c + np.array([3.5, 0.0, 0.0])
+    R, _ = look_at(eye, c)
+    ts = [-R @ (eye + s * 0.15 * R[0]) for s in (-1.0, 1.0)]
+    rig = camera.from_opencv(
+        np.stack([K, K]),
+        np.zeros((2, 5)),
+        np.stack([R, R]),
+        np.stack(ts),
+        ("left", "right"),
+        [(320, 240)] * 2,
+    )
+    rng = np.random.default_rng(0)
+    T, dets = 30, []
+    for t in range(T):
+        uv = _project(rig, X0 + np.array([0.0, 1.2 * t / 30.0, 0.0]))
+        dets.append(
+            [np.c_[uv[v] + rng.normal(0.0, 4.0, uv[v].shape), np.full(15, 0.9)][None] for v in range(2)]
+        )
+    kp, report = S.select_subject(rig, dets, fps=30.0)
+    assert report["subject_frames"] == T
+    assert report["views_per_frame"] == [2] * T

@@ -210,6 +210,7 @@ def test_compiled_once_and_outputs(sequence, tracked):
     # compiled ahead, while the first frame was initialised, with the structure of the step it then ran
     assert run.compiled_ahead
     assert run.trace_count == 1 and summary["compilations"] == 1
+    assert summary["compiled_after_first_frame"] == 0
     assert run._step._cache_size() == 1
     poses = export.load_poses(out)
     T = len(run.frames)
@@ -279,6 +280,34 @@ def test_track_loss_is_detected_and_reinitialised(sequence, tmp_path):
     assert [r["reinit_source"] for r in recs if r["reinitialised"]] == ["last_estimate", "last_estimate"]
     assert summary["reinitialisations"] == 2 and summary["lost_frames"] == 2
     assert not recs[7]["lost"] and np.isfinite(recs[8]["quality"])
+
+
+class _NoFirstDetections(_Blanked):
+    """A source whose first frame has no detections (its masks kept)."""
+
+    def read(self, t, masks=True, depth=True):
+        fd = self.s.read(t, masks, depth)
+        return fd._replace(keypoints=np.zeros_like(fd.keypoints)) if t == 0 else fd
+
+
+def test_no_frame_compiles_not_even_a_reinitialisation_from_detections(sequence, tmp_path):
+    """The first pose comes from the silhouettes (frame 0 has no detections), and every later frame is declared
+    lost (``loss_ratio`` 0.1 of a reference learnt over one frame) and re-initialised from its detections: those
+    programs are compiled before the first frame (``setup.warm_reinit``), and no frame after the first lowers a
+    program on the loop's thread (the in-memory caches are cleared first, so that earlier tests cannot have
+    compiled them)."""
+    jax.clear_caches()
+    src = _NoFirstDetections(SequenceSource(sequence), blank=())
+    opts = TrackOptions(
+        model="upper9", cues="coverage", particles=40, layers=2, frames="0:6", init="ik",
+        loss_ratio=0.1, loss_frames=1, loss_window=1,
+    )  # fmt: skip
+    summary = tracker.Tracker(src, tmp_path, opts, quiet=True).run()
+    recs = json.loads((tmp_path / "diagnostics.json").read_text())["frames"]
+    assert recs[0]["init"] == "ik-silhouette"
+    assert [r["reinit_source"] for r in recs if r["reinitialised"]].count("keypoints") >= 2
+    assert summary["compiled_after_first_frame"] == 0
+    assert not any("compiled_programs" in r for r in recs)
 
 
 class _Interrupting(_Blanked):
