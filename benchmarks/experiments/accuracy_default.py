@@ -95,22 +95,27 @@ COMMON = [j for j, n in enumerate(EVAL_JOINTS) if n != "head"]
 GOALS = {"ring4": 30.0, "stereo": 60.0}
 GOAL_FPS = 10.0
 #: what the tables show (written for the measured tables: ``python benchmarks/experiments/accuracy_default.py
-#: --seeds 3``, 2026-11-25 14:10 UTC)
+#: --seeds 3``, 2026-11-25 15:08 UTC)
 READING = (
-    "Reading (written for the run of 2026-11-25 14:10 UTC, 3 seeds, the defaults with the keypoints cue at "
-    "weight 32, the root's angles in the velocity prediction and the track-loss reference learnt again after "
-    "every re-initialisation): no accuracy goal holds; both speed goals do. Stereo: the tracker is below the "
-    "triangulation of the same detections on every clip, 136.7 mm mean (95.4 mm median) against 779.1 mm "
-    "(239.2 mm) over the 14 joints (166.6 / 121.2 mm with the earlier defaults); the pair's detections "
-    "triangulate badly (at f = 256 px a 0.30 m baseline about 4 m from the subject turns one pixel of disparity "
-    "into about 0.2 m of depth, and a few points land metres away); the crouch (223.8 mm, 214.5 before: the only "
-    "clip that got worse) and the turn (178.3 mm, 235.3 before) are the worst clips, far from the 60 mm goal. No "
-    "run started more than 0.5 m off: the first pose is the model fitted to the detections' reprojection, with "
-    "the depth maps deciding along the rays (`jaxmocap.tracking.init.keypoint_pose`). Four cameras: 46.0 mm mean "
+    "Reading (written for the run of 2026-11-25 15:08 UTC, 3 seeds, the defaults: the keypoints cue at weight 32, "
+    "the root's angles in the velocity prediction, the track-loss reference learnt again after every "
+    "re-initialisation; the subject of the stereo pairs found in every frame): no accuracy goal holds. Stereo: the "
+    "tracker is below the triangulation of the same detections on every clip, 139.7 mm mean (96.6 mm median) "
+    "against 858.9 mm (250.6 mm) over the 14 joints; the pair's detections triangulate badly (at f = 256 px a "
+    "0.30 m baseline about 4 m from the subject turns one pixel of disparity into about 0.2 m of depth, and a few "
+    "points land metres away); the crouch (222.6 mm) and the turn (188.2 mm) are the worst clips, far from the "
+    "60 mm goal. Before the subject selection linked a pair's frames across the lines of sight, it left 12-23 "
+    "frames of some stereo clips without detections (359 of 840 walk cells untriangulated, now 79): the tracker "
+    "then gave 136.7 mm (walk 109.8, raised hand 80.2, turn 178.3 against 117.6, 76.0, 188.2 now), a difference "
+    "within about two standard errors of three seeds per clip. No run started more than 0.5 m off: the first pose "
+    "is the model fitted to the detections' reprojection, with the depth maps deciding along the rays "
+    "(`jaxmocap.tracking.init.keypoint_pose`). Four cameras (unchanged by the subject selection): 46.0 mm mean "
     "(38.8 mm median) against 43.2 mm (35.0 mm) for the triangulation (90.5 / 56.1 mm with the earlier defaults, "
     "whose track of the turn fell up to 200° behind the body): the tracker is below the triangulation on the walk "
     "(39.7 against 45.0 mm) and the raised hand (32.5 against 35.4 mm) and above it on the Charleston, the turn "
-    "(57.8 against 43.7 mm), the crouch and the hops; the goal (≤ 30 mm) is not reached."
+    "(57.8 against 43.7 mm), the crouch and the hops; the goal (≤ 30 mm) is not reached. Speed: this run shared "
+    "the machine with two other CPU-bound jobs (load average 4-6): 14.3 and 9.4 frames/s; the run before, at load "
+    "0.8-2.4, gave 30.1 (stereo) and 17.7 (four cameras) frames/s."
 )
 #: a run whose first frame is off by more than this (mean over the joints, mm) did not start on the subject
 BAD_START_MM = 500.0

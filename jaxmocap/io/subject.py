@@ -155,22 +155,26 @@ class ViewGeometry:
 
 class Person(NamedTuple):
     """A person seen in several views of one frame: ``views {view: detection index}``, the triangulated joints
-    ``X (15, 3)`` (NaN where unknown), the residual ``/ τ`` per view and its centre ``(3,)``."""
+    ``X (15, 3)`` (NaN where unknown), the residual ``/ τ`` per view, its centre ``(3,)`` and ``behind (15,)``:
+    the joints whose rays met behind a camera (detections that contradict each other, e.g. left and right
+    exchanged in one view)."""
 
     views: dict[int, int]
     X: np.ndarray
     score: dict[int, float]
     centre: np.ndarray
+    behind: np.ndarray
 
 
 def _person(geo: ViewGeometry, ab: list[np.ndarray], chosen: dict[int, int]) -> Person | None:
     views = sorted(chosen)
     X = geo.triangulate(views, np.stack([ab[v][chosen[v]] for v in views]))
-    X[~geo.in_front(views, X)] = np.nan  # no triangulation: rays that meet behind a camera
+    behind = np.all(np.isfinite(X), axis=1) & ~geo.in_front(views, X)
+    X[behind] = np.nan  # no triangulation: rays that meet behind a camera
     if np.sum(np.all(np.isfinite(X), axis=1)) < MIN_JOINTS:
         return None
     score = {v: geo.residual(v, X, ab[v][chosen[v]]) / geo.tau[v] for v in views}
-    return Person(dict(chosen), X, score, np.nanmedian(X, axis=0))
+    return Person(dict(chosen), X, score, np.nanmedian(X, axis=0), behind)
 
 
 def multiview_persons(geo: ViewGeometry, dets: list[np.ndarray], max_seeds: int = 20) -> list[Person]:
@@ -320,6 +324,7 @@ def select_subject(
             taken = {(v, p) for person in persons[t] for v, p in person.views.items()}
             for v, p in subject[t].views.items():
                 out[t, v] = _completed(geo, v, subject[t].X, dets[t][v], p, taken)
+                out[t, v, subject[t].behind, 2] = 0.0  # contradicting detections: none of them is kept
             for v in range(V) if mirrored else ():
                 if v not in subject[t].views:
                     kp = _best_fit(geo, v, subject[t].X, dets[t][v], {p for w, p in taken if w == v}, True)

@@ -177,7 +177,7 @@ def test_the_subject_of_a_close_stereo_pair_in_every_frame():
     ±1 m, and some joints' rays meet behind the cameras. The subject is still one person seen by both cameras in
     every frame (the joints without a triangulation left out; the frames linked across the lines of sight); linking
     the frames by the 3D distance of the centres, with the person dropped where a ray met behind a camera, found
-    the subject in 15 of the 30 frames."""
+    the subject in 15 of the 30 frames. Detections that contradict each other are dropped, not the person."""
     from jaxmocap.geometry import camera
     from jaxmocap.synth.stage import look_at
 
@@ -206,3 +206,13 @@ def test_the_subject_of_a_close_stereo_pair_in_every_frame():
     kp, report = S.select_subject(rig, dets, fps=30.0)
     assert report["subject_frames"] == T
     assert report["views_per_frame"] == [2] * T
+    # the wrists exchanged in the right view: the right wrist's rays meet behind the cameras (30 px of negative
+    # disparity), and neither view's detection of it is kept; every other joint is
+    uv = _project(rig, X0)
+    lw, rw = EVAL_JOINTS.index("left_wrist"), EVAL_JOINTS.index("right_wrist")
+    right = np.c_[uv[1], np.full(15, 0.9)]
+    right[[lw, rw]] = right[[rw, lw]]
+    kp, report = S.select_subject(rig, [[np.c_[uv[0], np.full(15, 0.9)][None], right[None]]], fps=30.0)
+    assert report["subject_frames"] == 1
+    np.testing.assert_array_equal(kp[0, :, rw, 2], 0.0)
+    np.testing.assert_array_equal(np.delete(kp[0, :, :, 2], rw, axis=1), 0.9)
