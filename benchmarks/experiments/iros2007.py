@@ -61,16 +61,19 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmar
 import common
 import cv2
 import numpy as np
+from scenes import MOCAP
 
 RESULTS = common.RESULTS / "iros2007.md"
 ABLATION = common.RESULTS / "iros2007_ablation.md"
 SPEED = common.RESULTS / "iros2007_speed.md"
 CLUTTER = ("none", "medium", "high")
 HEAD_PX = 15.0  # about the radius of the rendered head at 3 m in the 640x480 view
+#: the shared CMU clips (``JAXMOCAP_SHARED_DATA/mocap/cmu``, else ``shared/data/mocap/cmu`` beside the checkout or
+#: one of its parent folders: :data:`scenes.MOCAP`)
 CMU = (
-    pathlib.Path(os.environ.get("JAXMOCAP_SHARED_DATA", common.ROOT.parent.parent / "shared" / "data"))
-    / "mocap"
-    / "cmu"
+    pathlib.Path(os.environ["JAXMOCAP_SHARED_DATA"]) / "mocap" / "cmu"
+    if "JAXMOCAP_SHARED_DATA" in os.environ
+    else MOCAP / "cmu"
 )
 MOTIONS = (
     ("02_01 walk", "02_01.amc", "02.asf"),
