@@ -54,7 +54,8 @@ DATA = pathlib.Path(os.environ.get("JAXMOCAP_DATA", "/work/shared/data")) / "vid
 DERIVED = "derived_by_pose2sim_a948c20"
 TRC = f"{DERIVED}/pose-3d/S00_P00_T01_BalancingTrial_0-100.trc"
 CALIB = "calibration/Calib_qualisys_converted_by_pose2sim_a948c20.toml"
-CUES = "foreground,edge_distance,coverage:4,keypoints:4"
+#: the tracker's default cues for such a folder (the keypoints cue at its default weight, 32)
+CUES = "foreground,edge_distance,coverage:4,keypoints:32"
 CAMS = [f"cam0{c}" for c in range(1, 5)]
 
 
