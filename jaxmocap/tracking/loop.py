@@ -523,10 +523,9 @@ class TrackingLoop:
                 )
                 if getattr(info, "layer_sets", None) is not None:  # --count-modes (López Méndez §5.2.1)
                     record["modes"] = count_layer_modes(*info.layer_sets, np.random.default_rng(t))
+                # every frame has the first one's shapes: a compilation after the first frame is a defect
                 compiled = watch.take()
-                if (
-                    compiled and i > start
-                ):  # every frame has the first one's shapes: a compilation is a defect
+                if compiled and i > start:
                     record["compiled_programs"] = compiled
                     stats["compiled_after_first_frame"] += compiled
                     if not self.quiet:
