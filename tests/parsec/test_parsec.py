@@ -452,6 +452,16 @@ def test_intersecting_parts_are_invalid(pdata, loglik_fn):
     assert np.all((ll[concrete] > -2.0) & (ll[concrete] < 0.0))
 
 
+def test_sphere_counts_stay_static_under_jit(pdata):
+    """A concrete body shape gives the sphere test its static counts inside a jit trace too (the filters' path),
+    the same as outside (computed with jnp there, they had become tracers and the 21-sphere masked test ran)."""
+    shape = pdata["shape"]
+    outside = pl._static_sphere_counts(shape)
+    inside = []
+    jax.jit(lambda x: inside.append(pl._static_sphere_counts(shape)) or x)(1.0)
+    assert outside is not None and inside == [outside]
+
+
 def test_huge_projection_is_bounded(pdata, corners_fn):
     """A body next to camera 1 projects far larger than the image: sample counts stay within the image bound."""
     x = np.array(pdata["states"]["InitialPose.txt"])
