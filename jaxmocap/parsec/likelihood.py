@@ -33,9 +33,11 @@ such a cylinder (an implausible particle) is the sampling sparser than bodytrack
 **Speed.** :func:`log_likelihood_batch` evaluates particles ``(N, 31)`` with the particle axis last in every
 intermediate array, where XLA on CPU vectorises the per-sample arithmetic (with ``vmap``'s leading batch axis it
 does not: several times slower). Inside a loop iteration every sample is a separate elementwise step accumulating
-into one packed integer counter per lane (no reduction ops, which XLA on CPU materialises), the index arithmetic
-is kept apart from the gathers by an optimisation barrier, and gathers use ``mode="fill"``. See
-``benchmarks/bench_parsec.py``.
+into one packed integer counter per lane (no reduction ops, which XLA on CPU materialises), and gathers use
+``mode="fill"``; XLA compiles a loop iteration into one fused kernel, 8 lanes per vector, the pixel reads one
+lane at a time. The loop lengths are reduced once before each loop, and the sphere test uses its static sphere
+counts (:func:`_static_sphere_counts`, NumPy only, so that they stay concrete inside ``jit``). See
+``benchmarks/perf/bench_parsec.py``.
 """
 
 from __future__ import annotations
@@ -297,9 +299,7 @@ def _index(x, y, offset, W: int, H: int, active):
 
 
 def _gather(flat, idx_masks):
-    """Pixel values at the indices of ``[(idx, mask), ...]``. The optimisation barrier keeps the index arithmetic
-    in its own (vectorised) loop, apart from the gathers (measured ~1.4× faster on CPU)."""
-    idx_masks = jax.lax.optimization_barrier(idx_masks)
+    """Pixel values at the indices of ``[(idx, mask), ...]``."""
     return [(jnp.take(flat, i, mode="fill"), m) for i, m in idx_masks]
 
 
