@@ -31,8 +31,8 @@ difference of its log-likelihoods from the default's (0: bit-identical).
 
     .venv/bin/python benchmarks/perf/bench_parsec.py --bodytrack-rounds 0 --edge-chunks 8 --ab-rounds 15
 
-``--against REV`` does the same for ``jaxmocap/parsec/likelihood.py`` as it was at git revision ``REV`` (read with
-``git show``, imported beside this checkout's, the rest of the package this checkout's):
+``--against REV`` does the same for the likelihood as it was at git revision ``REV``: the whole ``jaxmocap`` package
+of ``REV`` (``git archive``, so its cylinders and cameras too) imported beside this checkout's:
 
     .venv/bin/python benchmarks/perf/bench_parsec.py --bodytrack-rounds 0 --against main --ab-rounds 11
 """
@@ -43,6 +43,7 @@ import argparse
 import importlib.util
 import os
 import pathlib
+import re
 import subprocess
 import sys
 import tempfile
@@ -80,7 +81,9 @@ def _args(argv=None):
     ap.add_argument(
         "--edge-chunks", nargs="*", default=[], metavar="C[,C...]", help="A/B of Config(chunk=...)"
     )
-    ap.add_argument("--against", metavar="REV", help="A/B of the likelihood module at git revision REV")
+    ap.add_argument(
+        "--against", metavar="REV", help="A/B of the likelihood (its package) at git revision REV"
+    )
     ap.add_argument("--ab-rounds", type=int, default=7, help="interleaved rounds of the A/B options")
     return ap.parse_args(argv)
 
@@ -156,20 +159,27 @@ def ab_table(progs: dict, X, obs, rounds: int, title: str, calls: int = 5) -> No
 
 
 def likelihood_at(rev: str):
-    """``jaxmocap/parsec/likelihood.py`` as of git revision ``rev``, imported as its own module."""
-    src = subprocess.run(
-        ["git", "-C", str(common.ROOT), "show", f"{rev}:jaxmocap/parsec/likelihood.py"],
-        check=True,
-        capture_output=True,
-        text=True,
+    """``jaxmocap.parsec.likelihood`` as of git revision ``rev``, with the rest of the package as of ``rev`` too (the
+    cylinders, cameras and images it imports): ``jaxmocap/`` of ``rev`` extracted with ``git archive`` into a
+    temporary folder as the package ``jaxmocap_at_rev``, its imports renamed, imported beside this checkout's."""
+    root = pathlib.Path(tempfile.mkdtemp())
+    tar = subprocess.run(
+        ["git", "-C", str(common.ROOT), "archive", rev, "jaxmocap"], check=True, capture_output=True
     ).stdout
-    path = pathlib.Path(tempfile.mkdtemp()) / "likelihood_at_rev.py"
-    path.write_text(src)
-    spec = importlib.util.spec_from_file_location("likelihood_at_rev", path)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod  # dataclasses look their module up
-    spec.loader.exec_module(mod)
-    return mod
+    subprocess.run(["tar", "-x", "-C", str(root)], input=tar, check=True)
+    pkg = root / "jaxmocap_at_rev"
+    (root / "jaxmocap").rename(pkg)
+    for f in pkg.rglob("*.py"):
+        text = f.read_text()
+        text = re.sub(r"\bfrom jaxmocap(?=[. ])", "from jaxmocap_at_rev", text)
+        text = re.sub(r"\bimport jaxmocap\.", "import jaxmocap_at_rev.", text)
+        text = re.sub(r"(?<![\w.])jaxmocap\.(?=[a-z_]+\.)", "jaxmocap_at_rev.", text)
+        f.write_text(text)
+    sys.path.insert(0, str(root))
+    try:
+        return importlib.import_module("jaxmocap_at_rev.parsec.likelihood")
+    finally:
+        sys.path.remove(str(root))
 
 
 def main(args):

@@ -27,6 +27,20 @@ from jaxmocap.parsec.model import (
 __all__ = ["cylinder_corners", "cylinder_poses"]
 
 
+def _materialise(*arrays: jnp.ndarray) -> list[jnp.ndarray]:
+    """The same arrays (one shape), computed once: read back through one gather of their stack.
+
+    XLA's CPU compiler drops ``lax.optimization_barrier`` before fusion and copies cheap element-wise producers
+    into every fusion that reads them (:mod:`jaxmocap.likelihood.maps`), so a value read by many outputs is
+    recomputed for each; a gather is never copied. Used where the recomputation was measured to cost: the
+    sines and cosines read by every joint of the chain, and the outline offsets read by the eight corner
+    coordinates (``benchmarks/perf/bench_parsec.py --against``).
+    """
+    stack = jnp.stack(arrays)
+    out = jnp.take(stack, jnp.arange(len(arrays)), axis=0, mode="clip")
+    return [out[i] for i in range(len(arrays))]
+
+
 def _sincos(x: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
     """``(sin x, cos x)``; float32 by Cody–Waite reduction to [−π/4, π/4] and Cephes' polynomials (≤ 1 ulp for
     the angles of a body, about 10× faster than XLA's CPU sin/cos), float64 by ``jnp.sin``/``jnp.cos``."""
@@ -82,7 +96,7 @@ def _segment_frames(lengths: jnp.ndarray, x: jnp.ndarray) -> list:
     """
     dt = x.dtype
     batch = x.shape[1:]
-    sin, cos = _sincos(x)
+    sin, cos = _materialise(*_sincos(x))
     sin, cos = sin[:, None], cos[:, None]  # (31, 1, *B) against (3, *B) columns
     eye = jnp.broadcast_to(_trail(jnp.eye(3, dtype=dt), len(batch)), (3, 3) + batch)
     frames: list = []
@@ -176,6 +190,9 @@ def _corners(shape: BodyShape, cams: Cameras, A, t) -> jnp.ndarray:
     r2x = ey * inv  # r2 = (−r.y, r.x)/|r| with r = (0, 0, len/2) − eye_local
     r2y = -ex * inv
     u = [A[i][0] * r2x + A[i][1] * r2y for i in range(3)]  # world offset of the local (r2x, r2y, 0)
+    # computed once, not once per corner coordinate (the eight outputs would each recompute them)
+    *u, tx, ty, tz = _materialise(*u, *(jnp.broadcast_to(t[i], u[0].shape) for i in range(3)))
+    t = [tx, ty, tz]
     w = [A[i][2] * length for i in range(3)]  # world offset of the local (0, 0, len), (10, *B)
     corners = []
     for k, rad in enumerate((-bottom, -top, top, bottom)):

@@ -60,6 +60,9 @@ def _binary_row_blur() -> np.ndarray:
 _ROW_BLUR = _binary_row_blur()
 
 
+_ROW_BLUR_256 = np.concatenate([_ROW_BLUR, np.zeros(256 - len(_ROW_BLUR), np.uint8)])  # cv2.LUT takes 256
+
+
 def edge_map(gray: np.ndarray, threshold: float = 16.0) -> np.ndarray:
     """bodytrack's edge map (§6.1) of a grey image ``(H, W) uint8`` → ``(H, W) uint8``, bit for bit.
 
@@ -68,34 +71,37 @@ def edge_map(gray: np.ndarray, threshold: float = 16.0) -> np.ndarray:
     3. 7-tap blur along rows (x in [3, W−3)), truncated to uint8, then along columns (y in [3, H−3)), truncated
        again; the margins are zero. Float32 accumulation in kernel order, as the C++ does.
 
-    ``B`` is binary, so the row pass reads its result from a 128-entry table indexed by the 7 taps' bits
-    (:func:`_binary_row_blur`, the same float32 sums); the column pass accumulates directly.
+    Steps 1–2 are exact in any order: ``gx = Gx/8`` with ``Gx`` the integer Sobel response (``|Gx| ≤ 1020``), so
+    every partial sum is a multiple of 1/8 and ``gx² + gy² = (Gx² + Gy²)/64`` with ``Gx² + Gy² < 2²⁴``, all exact
+    in float32; they are computed as ``Gx² + Gy² ≥ 64·threshold`` with OpenCV's Sobel (float32 output, integer
+    values). ``B`` is binary, so the row pass reads its result from a 128-entry table indexed by the 7 taps' bits
+    (:func:`_binary_row_blur`, the same float32 sums; the 7-bit codes by an integer filter, exact). The column pass
+    is order-dependent and accumulates directly, tap by tap in kernel order.
     """
+    import cv2
+
     I = np.asarray(gray)
     if I.ndim != 2 or I.dtype != np.uint8:
         raise ValueError(f"edge_map expects a (H, W) uint8 image, got {I.shape} {I.dtype}")
     H, W = I.shape
-    f = I.astype(np.float32)
-    c8, c4 = np.float32(0.125), np.float32(0.25)
-    up, mid, dn = f[:-2], f[1:-1], f[2:]
-    ul, ur = up[:, :-2], up[:, 2:]
-    ml, mr = mid[:, :-2], mid[:, 2:]
-    dl, dr = dn[:, :-2], dn[:, 2:]
-    gx = -c8 * ul + c8 * ur - c4 * ml + c4 * mr - c8 * dl + c8 * dr
-    gy = -c8 * ul - c4 * up[:, 1:-1] - c8 * ur + c8 * dl + c4 * dn[:, 1:-1] + c8 * dr
+    gx = cv2.Sobel(I, cv2.CV_32F, 1, 0, ksize=3)  # Gx = 8 gx, integers
+    gy = cv2.Sobel(I, cv2.CV_32F, 0, 1, ksize=3)
+    mag = cv2.add(cv2.multiply(gx, gx), cv2.multiply(gy, gy))  # 64 (gx² + gy²), exact
     bit = np.zeros((H, W), np.uint8)
-    bit[1:-1, 1:-1] = gx * gx + gy * gy >= np.float32(threshold)  # B / 255
+    bit[1:-1, 1:-1] = mag[1:-1, 1:-1] >= np.float32(threshold) * np.float32(64.0)  # B / 255
     k = len(_BLUR)
     n = k // 2
-    code = np.zeros((H, W - 2 * n), np.uint8)
-    for i in range(k):
-        code |= bit[:, i : i + W - 2 * n] << i
-    tmp = np.zeros((H, W), np.uint8)
-    tmp[:, n:-n] = _ROW_BLUR[code]
+    taps = (1 << np.arange(k)).astype(np.float32)[None, :]  # code = Σ_i bit[x − n + i] · 2^i
+    code = cv2.filter2D(bit, cv2.CV_8U, taps, anchor=(n, 0), borderType=cv2.BORDER_CONSTANT)
+    tmp = cv2.LUT(code, _ROW_BLUR_256)
+    tmp[:, :n] = 0
+    tmp[:, W - n :] = 0
     s = tmp.astype(np.float32)
-    acc = np.zeros((H - 2 * n, W), np.float32)
-    for i in range(k):
-        acc = acc + s[i : i + H - 2 * n] * _BLUR[i]
+    acc = s[: H - 2 * n] * _BLUR[0]  # 0 + s·w is s·w exactly
+    prod = np.empty_like(acc)
+    for i in range(1, k):
+        np.multiply(s[i : i + H - 2 * n], _BLUR[i], out=prod)
+        acc += prod
     out = np.zeros((H, W), np.uint8)
     out[n:-n] = acc.astype(np.uint8)  # C cast: truncation (acc is in [0, 255])
     return out

@@ -33,9 +33,11 @@ such a cylinder (an implausible particle) is the sampling sparser than bodytrack
 **Speed.** :func:`log_likelihood_batch` evaluates particles ``(N, 31)`` with the particle axis last in every
 intermediate array, where XLA on CPU vectorises the per-sample arithmetic (with ``vmap``'s leading batch axis it
 does not: several times slower). Inside a loop iteration every sample is a separate elementwise step accumulating
-into one packed integer counter per lane (no reduction ops, which XLA on CPU materialises), the index arithmetic
-is kept apart from the gathers by an optimisation barrier, and gathers use ``mode="fill"``. See
-``benchmarks/bench_parsec.py``.
+into one packed integer counter per lane (no reduction ops, which XLA on CPU materialises), and gathers use
+``mode="fill"``; XLA compiles a loop iteration into one fused kernel, 8 lanes per vector, the pixel reads one
+lane at a time. The loop lengths are reduced once before each loop, and the sphere test uses its static sphere
+counts (:func:`_static_sphere_counts`, NumPy only, so that they stay concrete inside ``jit``). See
+``benchmarks/perf/bench_parsec.py``.
 """
 
 from __future__ import annotations
@@ -52,7 +54,7 @@ import numpy as np
 from jaxmocap.parsec import cylinders
 from jaxmocap.parsec.cameras import Cameras, _trail
 from jaxmocap.parsec.files import NUM_DOFS, NUM_PARTS, BodyShape
-from jaxmocap.parsec.model import cylinder_lengths
+from jaxmocap.parsec.model import _CYLINDER_LENGTH, cylinder_lengths
 
 __all__ = [
     "Config",
@@ -181,11 +183,12 @@ def _sphere_count(length, radius_max):
 
 def _static_sphere_counts(shape: BodyShape) -> dict[int, int] | None:
     """Sphere counts of the tested parts when the shape is concrete (not traced), else ``None``."""
-    try:
+    try:  # NumPy only: inside a trace a jnp operation on constants gives a tracer, not a value
         limbs = np.asarray(shape.limbs, dtype=np.float64)
-        length = np.asarray(cylinder_lengths(BodyShape(np.asarray(shape.limbs), np.asarray(shape.lengths))))
+        lengths = np.asarray(shape.lengths, dtype=np.float64)
     except (jax.errors.ConcretizationTypeError, jax.errors.TracerArrayConversionError):
         return None
+    length = np.asarray([s * lengths[k] for k, s in _CYLINDER_LENGTH])
     parts = {p for pair in INTERSECTION_PAIRS for p in pair}
     out = {}
     for i in parts:
@@ -296,9 +299,7 @@ def _index(x, y, offset, W: int, H: int, active):
 
 
 def _gather(flat, idx_masks):
-    """Pixel values at the indices of ``[(idx, mask), ...]``. The optimisation barrier keeps the index arithmetic
-    in its own (vectorised) loop, apart from the gathers (measured ~1.4× faster on CPU)."""
-    idx_masks = jax.lax.optimization_barrier(idx_masks)
+    """Pixel values at the indices of ``[(idx, mask), ...]``."""
     return [(jnp.take(flat, i, mode="fill"), m) for i, m in idx_masks]
 
 
@@ -336,8 +337,10 @@ def _edge_group(uv, flat_edge, config: Config, W: int, H: int, C: int):
                 acc = (acc[0] + jnp.where(m, e * e, 0), acc[1] + m.astype(jnp.int32))
         return k + 1.0, t, acc
 
+    limit = jnp.max(count)  # outside the condition, which would reduce it again every iteration
+
     def cond_fn(carry):
-        return carry[0] * C < jnp.max(count)
+        return carry[0] * C < limit
 
     zeros = jnp.zeros_like(px)
     acc0 = jnp.zeros(px.shape, jnp.uint32) if packed else (jnp.zeros(px.shape, jnp.int32),) * 2
@@ -405,8 +408,10 @@ def _inside_group(uv, flat_fg, config: Config, W: int, H: int, C2: int):
             e1y = jnp.where(wrap, a1y, e1y)
         return k + 1.0, r, col, delta1, delta2, acc
 
+    limit = jnp.max(rows * blocks)  # outside the condition, which would reduce it again every iteration
+
     def cond_fn(carry):
-        return carry[0] * config.inside_rows < jnp.max(rows * blocks)
+        return carry[0] * config.inside_rows < limit
 
     zeros = jnp.zeros_like(p1x)
     init = (jnp.zeros((), uv.dtype), zeros, zeros, zeros, zeros, jnp.zeros(p1x.shape, jnp.uint32))

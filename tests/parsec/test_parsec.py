@@ -208,6 +208,57 @@ def test_edge_map_equals_bodytrack(pdata):
     assert parsec.edge_map(ims[0])[:3].max() == 0 and parsec.edge_map(ims[0])[:, -3:].max() == 0
 
 
+def _edge_map_direct(I, threshold):
+    """bodytrack's edge map transcribed directly: float32 Sobel / 8 summed in its term order, threshold, 7-tap row
+    then column blur accumulated in float32 in kernel order, each truncated to uint8, zero margins."""
+    f = I.astype(np.float32)
+    c8, c4 = np.float32(0.125), np.float32(0.25)
+    up, mid, dn = f[:-2], f[1:-1], f[2:]
+    gx = (
+        -c8 * up[:, :-2]
+        + c8 * up[:, 2:]
+        - c4 * mid[:, :-2]
+        + c4 * mid[:, 2:]
+        - c8 * dn[:, :-2]
+        + c8 * dn[:, 2:]
+    )
+    gy = (
+        -c8 * up[:, :-2]
+        - c4 * up[:, 1:-1]
+        - c8 * up[:, 2:]
+        + c8 * dn[:, :-2]
+        + c4 * dn[:, 1:-1]
+        + c8 * dn[:, 2:]
+    )
+    b = np.zeros(I.shape, np.float32)
+    b[1:-1, 1:-1] = np.where(gx * gx + gy * gy >= np.float32(threshold), 255.0, 0.0)
+    w = parsec.images._BLUR
+    H, W = I.shape
+    acc = np.zeros((H, W - 6), np.float32)
+    for i in range(7):
+        acc = acc + b[:, i : i + W - 6] * w[i]
+    tmp = np.zeros((H, W), np.float32)
+    tmp[:, 3:-3] = acc.astype(np.uint8)
+    acc = np.zeros((H - 6, W), np.float32)
+    for i in range(7):
+        acc = acc + tmp[i : i + H - 6] * w[i]
+    out = np.zeros((H, W), np.uint8)
+    out[3:-3] = acc.astype(np.uint8)
+    return out
+
+
+@pytest.mark.parametrize("threshold", [16.0, 4.5, 100.0])
+def test_edge_map_equals_the_direct_float32_computation(threshold):
+    """The integer Sobel and the tabulated row pass give bodytrack's float32 arithmetic bit for bit, on noise, on
+    smooth images and on flat ones with steps near the threshold."""
+    rng = np.random.default_rng(7)
+    smooth = np.cumsum(rng.integers(-3, 4, (60, 80)), axis=1) % 256
+    steps = np.tile(np.repeat(np.arange(0, 80, 4) % 7, 4), (60, 1))
+    for im in (rng.integers(0, 256, (60, 80)), smooth, steps):
+        im = im.astype(np.uint8)
+        np.testing.assert_array_equal(parsec.edge_map(im, threshold), _edge_map_direct(im, threshold))
+
+
 # ---------------------------------------------------------------------------------------------------------------
 # Body model
 
@@ -450,6 +501,16 @@ def test_intersecting_parts_are_invalid(pdata, loglik_fn):
     ll = np.asarray(loglik_fn(jnp.asarray(X), _obs(pdata, 0)))
     assert np.all(ll[~concrete] == pl.INVALID)
     assert np.all((ll[concrete] > -2.0) & (ll[concrete] < 0.0))
+
+
+def test_sphere_counts_stay_static_under_jit(pdata):
+    """A concrete body shape gives the sphere test its static counts inside a jit trace too (the filters' path),
+    the same as outside (computed with jnp there, they had become tracers and the 21-sphere masked test ran)."""
+    shape = pdata["shape"]
+    outside = pl._static_sphere_counts(shape)
+    inside = []
+    jax.jit(lambda x: inside.append(pl._static_sphere_counts(shape)) or x)(1.0)
+    assert outside is not None and inside == [outside]
 
 
 def test_huge_projection_is_bounded(pdata, corners_fn):
