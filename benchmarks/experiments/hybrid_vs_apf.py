@@ -168,7 +168,8 @@ READING = (
     "The hybrid's time is mostly the loop over its steps, not the gradient evaluations: S = 1 costs 8.3 ms, "
     "S = 2 21.0 ms, S = 3 24.8 ms at N = 25 (XLA removes a loop of one iteration). The lowest pooled error of "
     "15 gradient configurations is an optimistic pick; the three hybrid sizes together are the fairer "
-    "reading."
+    "reading. Runtime: 604 s with every program in the persistent compilation cache; about 30 min compiling "
+    "them all (load 5–6)."
 )
 
 
@@ -522,8 +523,14 @@ def report(
             else "background subtraction against the plates, start from the simulated detections (no ground "
             "truth, rendered mask or part label).\n"
         ),
+        "Filters: APF with L = 4 layers, Deutscher's survival rate α = 0.5, diffusion Δ · 0.6^l, N particles per "
+        "layer; hybrid: the same with S = 3 normalised gradient steps of one diffusion std on the k = 5 best "
+        "distinct particles in every layer, unless the label says otherwise (S=1, S=2; moves in the last layer "
+        "of 4 only; L=2 layers); refined: the APF + 10 Adam steps of 0.3 diffusion std from the weighted mean. "
+        "Likelihood: foreground + edge distance (bilinear), `full25` with the subject's dimensions, 400 surface "
+        "points.\n",
         f"{seeds} filter seeds per clip and configuration; {len(runs)} runs, interleaved (every configuration once "
-        f"per clip and seed, in an order rotated by the seed) in {len(processes)} processes (one per clip and sweep), "
+        f"per clip and seed, in an order rotated by the seed) in {len(processes)} processes (one per clip{'' if len(processes) == len(clips) else ' and sweep'}), "
         f"{min(u['time'] for u in runs)} – {max(u['time'] for u in runs)}; {common.machine_line().rsplit(',', 1)[0]}; load average (1 min) at "
         f"the runs' starts {loads.min():.1f} – {loads.max():.1f}, median {np.median(loads):.1f} (the machine was "
         "shared with other timing runs). Time = the wall time of the compiled tracking of a clip (filter only; the "
