@@ -115,3 +115,33 @@ def report(path: pathlib.Path, text: str, command: str, write: bool = True) -> s
     if write:
         write_result(path, text + "\n", command)
     return text
+
+
+def package_at(rev: str, module: str):
+    """``jaxmocap.<module>`` as of git revision ``rev``, with the rest of the package as of ``rev`` too: ``jaxmocap/``
+    of ``rev`` extracted with ``git archive`` into a temporary folder as the package ``jaxmocap_at_rev``, its imports
+    renamed, imported beside this checkout's (for same-process A/B timings, ``--against REV``)."""
+    import importlib
+    import re
+    import subprocess
+    import sys
+    import tempfile
+
+    root = pathlib.Path(tempfile.mkdtemp())
+    tar = subprocess.run(
+        ["git", "-C", str(ROOT), "archive", rev, "jaxmocap"], check=True, capture_output=True
+    ).stdout
+    subprocess.run(["tar", "-x", "-C", str(root)], input=tar, check=True)
+    pkg = root / "jaxmocap_at_rev"
+    (root / "jaxmocap").rename(pkg)
+    for f in pkg.rglob("*.py"):
+        text = f.read_text()
+        text = re.sub(r"\bfrom jaxmocap(?=[. ])", "from jaxmocap_at_rev", text)
+        text = re.sub(r"\bimport jaxmocap\.", "import jaxmocap_at_rev.", text)
+        text = re.sub(r"(?<![\w.])jaxmocap\.(?=[a-z_]+\.)", "jaxmocap_at_rev.", text)
+        f.write_text(text)
+    sys.path.insert(0, str(root))
+    try:
+        return importlib.import_module(f"jaxmocap_at_rev.{module}")
+    finally:
+        sys.path.remove(str(root))

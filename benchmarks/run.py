@@ -238,7 +238,7 @@ SCRIPTS: dict[str, Script] = {
     "grad_cost": Script(
         "Value and gradient of the tracker's likelihood in forward evaluations (the gradient filters' cost)",
         "perf/grad_cost.py",
-        "--general --out benchmarks/results/grad_cost.md",
+        "--general --against 628bb34~1 --out benchmarks/results/grad_cost.md",
         writes=("grad_cost.md",),
         slow=True,
     ),

@@ -40,13 +40,9 @@ of ``REV`` (``git archive``, so its cylinders and cameras too) imported beside t
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import os
 import pathlib
-import re
-import subprocess
 import sys
-import tempfile
 import time
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmarks/: the shared modules
@@ -160,26 +156,8 @@ def ab_table(progs: dict, X, obs, rounds: int, title: str, calls: int = 5) -> No
 
 def likelihood_at(rev: str):
     """``jaxmocap.parsec.likelihood`` as of git revision ``rev``, with the rest of the package as of ``rev`` too (the
-    cylinders, cameras and images it imports): ``jaxmocap/`` of ``rev`` extracted with ``git archive`` into a
-    temporary folder as the package ``jaxmocap_at_rev``, its imports renamed, imported beside this checkout's."""
-    root = pathlib.Path(tempfile.mkdtemp())
-    tar = subprocess.run(
-        ["git", "-C", str(common.ROOT), "archive", rev, "jaxmocap"], check=True, capture_output=True
-    ).stdout
-    subprocess.run(["tar", "-x", "-C", str(root)], input=tar, check=True)
-    pkg = root / "jaxmocap_at_rev"
-    (root / "jaxmocap").rename(pkg)
-    for f in pkg.rglob("*.py"):
-        text = f.read_text()
-        text = re.sub(r"\bfrom jaxmocap(?=[. ])", "from jaxmocap_at_rev", text)
-        text = re.sub(r"\bimport jaxmocap\.", "import jaxmocap_at_rev.", text)
-        text = re.sub(r"(?<![\w.])jaxmocap\.(?=[a-z_]+\.)", "jaxmocap_at_rev.", text)
-        f.write_text(text)
-    sys.path.insert(0, str(root))
-    try:
-        return importlib.import_module("jaxmocap_at_rev.parsec.likelihood")
-    finally:
-        sys.path.remove(str(root))
+    cylinders, cameras and images it imports): :func:`common.package_at`."""
+    return common.package_at(rev, "parsec.likelihood")
 
 
 def main(args):

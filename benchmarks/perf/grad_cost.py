@@ -24,7 +24,10 @@ same particles, in the same process:
   over the rounds and the ratios of the medians; the load average is recorded at the start and the end.
 
     python benchmarks/perf/grad_cost.py [--models upper14 full25] [--particles 200 1000] [--rounds 9]
-                                        [--general] [--out benchmarks/results/grad_cost.md] [--quick]
+                                        [--general] [--against REV] [--out benchmarks/results/grad_cost.md] [--quick]
+
+``--against REV`` adds, on the default set, the value and gradient of the ``jaxmocap`` package at git revision
+``REV`` (:func:`common.package_at`), timed in the same rounds, with the per-round ratios of this checkout's to it.
 """
 
 from __future__ import annotations
@@ -51,7 +54,9 @@ CUE_SETS = {
     "coverage": "coverage:4",
     "keypoints": "keypoints:4",
 }
-COMMAND = "python benchmarks/perf/grad_cost.py --general --out benchmarks/results/grad_cost.md"
+COMMAND = (
+    "python benchmarks/perf/grad_cost.py --general --against 628bb34~1 --out benchmarks/results/grad_cost.md"
+)
 
 
 def make_sequence(folder: pathlib.Path, size: str) -> pathlib.Path:
@@ -63,16 +68,19 @@ def make_sequence(folder: pathlib.Path, size: str) -> pathlib.Path:
     return out
 
 
-def programs(seq: pathlib.Path, model: str, cues: str, n: int, general: bool):
-    """``({name: compiled program}, arguments)`` of one row (module docstring)."""
+def programs(seq: pathlib.Path, model: str, cues: str, n: int, general: bool, package: str = "jaxmocap"):
+    """``({name: compiled program}, arguments)`` of one row (module docstring), with the modules of ``package``
+    (``jaxmocap_at_rev``: the package at ``--against REV``, :func:`common.package_at`)."""
+    import importlib
+
     import jax
     import jax.numpy as jnp
     import numpy as np
     import scenes
 
-    from jaxmocap.likelihood import gradients
-    from jaxmocap.tracking.options import TrackOptions
-    from jaxmocap.tracking.setup import TrackSetup
+    gradients = importlib.import_module(f"{package}.likelihood.gradients")
+    TrackOptions = importlib.import_module(f"{package}.tracking.options").TrackOptions
+    TrackSetup = importlib.import_module(f"{package}.tracking.setup").TrackSetup
 
     source = scenes.PlateSource(seq)
     opts = TrackOptions(model=model, filter="hybrid", cues=cues, foreground="mask", init="groundtruth")
@@ -94,37 +102,62 @@ def programs(seq: pathlib.Path, model: str, cues: str, n: int, general: bool):
     return compiled, (X, tobs)
 
 
-def timed_rounds(compiled: dict, args: tuple, rounds: int) -> dict:
-    """Seconds per program over ``rounds`` interleaved rounds (each program run twice, the second run timed)."""
+def timed_rounds(compiled: dict, args: tuple, rounds: int, own_args: dict | None = None) -> dict:
+    """Seconds per program over ``rounds`` interleaved rounds (each program run twice, the second run timed);
+    ``own_args``: the arguments of programs that take others than ``args``."""
     import jax
 
-    def second(f):
-        def run():
-            jax.block_until_ready(f(*args))
-            t = time.perf_counter()
-            jax.block_until_ready(f(*args))
-            return time.perf_counter() - t
+    def second(f, a):
+        jax.block_until_ready(f(*a))
+        t = time.perf_counter()
+        jax.block_until_ready(f(*a))
+        return time.perf_counter() - t
 
-        return run
-
+    own_args = own_args or {}
     samples = {k: [] for k in compiled}
     for _ in range(rounds):
         for k, f in compiled.items():
-            samples[k].append(second(f)())
+            samples[k].append(second(f, own_args.get(k, args)))
     return samples
 
 
-def row(seq, model: str, label: str, n: int, rounds: int, general: bool) -> dict:
+def row(seq, model: str, label: str, n: int, rounds: int, general: bool, against: str | None = None) -> dict:
+    """One row: medians, ratios, and with ``against`` the value and gradient at that revision (``before``) timed in
+    the same rounds, with its per-round ratios to this checkout's."""
     import numpy as np
 
     compiled, args = programs(seq, model, CUE_SETS[label], n, general)
-    t = timed_rounds(compiled, args, rounds)
+    own = {}
+    if against is not None:
+        at, own["before"] = programs(seq, model, CUE_SETS[label], n, False, "jaxmocap_at_rev")
+        compiled["before"] = at["fast"]
+    t = timed_rounds(compiled, args, rounds, own)
     med = {k: float(np.median(v)) for k, v in t.items()}
     out = dict(model=model, cues=label, n=n, **{f"{k}_ms": v * 1e3 for k, v in med.items()})
     out["fast_ratio"] = med["fast"] / med["forward"]
     if "general" in med:
         out["general_ratio"] = med["general"] / med["forward"]
+    if "before" in med:
+        out["before_ratio"] = med["before"] / med["forward"]
+        per_round = np.asarray(t["fast"]) / np.asarray(t["before"])
+        out["now_over_before"] = (float(np.median(per_round)), float(per_round.min()), float(per_round.max()))
     return out
+
+
+def against_table(rows: list[dict]) -> list[str]:
+    """The rows with a ``before`` program: both ratios to the forward pass and the per-round ratios now / before."""
+    lines = [
+        "| model | cues | N | before ms | ÷ forward | now ms | ÷ forward | now ÷ before, median of rounds [range] |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        if "before_ms" in r:
+            m, lo, hi = r["now_over_before"]
+            lines.append(
+                f"| {r['model']} | {r['cues']} | {r['n']} | {r['before_ms']:.2f} | {r['before_ratio']:.2f} | "
+                f"{r['fast_ms']:.2f} | {r['fast_ratio']:.2f} | **{m:.3f}** [{lo:.2f}–{hi:.2f}] |"
+            )
+    return lines
 
 
 def table(rows: list[dict]) -> list[str]:
@@ -151,7 +184,14 @@ def main(argv=None) -> str:
     ap.add_argument("--general", action="store_true", help="also the general path, on the track default set")
     ap.add_argument("--out", type=pathlib.Path, default=None)
     ap.add_argument("--quick", action="store_true", help="full25, the default set, N = 50, 3 rounds")
+    ap.add_argument(
+        "--against",
+        metavar="REV",
+        help="also the value and gradient at git revision REV, on the track default set",
+    )
     a = ap.parse_args(argv)
+    if a.against:
+        common.package_at(a.against, "tracking.setup")
     if a.quick:
         a.models, a.cues, a.particles, a.rounds, a.size = ["full25"], ["track default"], [50], 3, "160x120"
     load0 = os.getloadavg()[0]
@@ -162,7 +202,8 @@ def main(argv=None) -> str:
             for label in a.cues:
                 for n in a.particles:
                     general = a.general and label == "track default"
-                    rows.append(row(seq, model, label, n, a.rounds, general))
+                    before = a.against if label == "track default" else None
+                    rows.append(row(seq, model, label, n, a.rounds, general, before))
                     print(table(rows[-1:])[-1], flush=True)
     text = "\n".join(
         [
@@ -174,6 +215,11 @@ def main(argv=None) -> str:
             f"{common.stamp()}",
         ]
     )
+    if a.against:
+        text += (
+            f"\n\n**This change against {a.against}** (its package imported beside this checkout's, "
+            "timed in the same rounds), value + gradient:\n\n" + "\n".join(against_table(rows))
+        )
     print(text)
     if a.out is not None and not a.quick:
         common.write_result(a.out, text + "\n", COMMAND)

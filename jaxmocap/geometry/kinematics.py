@@ -29,11 +29,13 @@ Two layers live here:
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Sequence
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.custom_derivatives import SymbolicZero
 
 # ---------------------------------------------------------------------------------------------------------------
 # General batched maps
@@ -273,8 +275,9 @@ def segment_poses(
     compiled in a fraction of the time), elsewhere the product written out segment by segment
     (:func:`_segment_poses_unrolled`), chosen by ``jax.default_backend()`` when traced.
     """
-    form = _segment_poses_loop if jax.default_backend() in LOOP_BACKENDS else _segment_poses_unrolled
-    return form(topology, rest_rotation, offset, dof_axis, x)
+    if jax.default_backend() in LOOP_BACKENDS:
+        return _segment_poses_cpu(topology, rest_rotation, offset, dof_axis, x)
+    return _segment_poses_unrolled(topology, rest_rotation, offset, dof_axis, x)
 
 
 def _segment_poses_unrolled(
@@ -315,8 +318,8 @@ def _segment_poses_unrolled(
 
 
 def _segment_poses_loop(
-    topology: Topology, rest_rotation, offset, dof_axis, x
-) -> tuple[jnp.ndarray, jnp.ndarray]:
+    topology: Topology, rest_rotation, offset, dof_axis, x, joints: bool = False
+) -> tuple[jnp.ndarray, ...]:
     """:func:`segment_poses` as loops (the CPU form).
 
     Two nested ``lax.scan``: over the segments in order (parents first; the carry holds every pose as a row
@@ -328,6 +331,10 @@ def _segment_poses_loop(
     written out segment by segment (:func:`_segment_poses_unrolled`). The loop bodies are compiled once and each
     value is computed once (``full25``: 472 lines of StableHLO instead of 2828; after XLA's fusion 1677 instead
     of 20004), and the loops run at least as fast on a CPU.
+
+    ``joints=True`` also returns each slot's axis and origin in its segment's parent frame, ``(S, M, 3)`` twice:
+    ``R_loc a_k`` and ``t_loc`` as the slot finds them (``R_loc``, ``t_loc``: the segment's pose relative to its
+    parent so far), for :func:`_segment_poses_cpu`'s derivative; ``R`` and ``t`` are the same arithmetic.
     """
     x = jnp.asarray(x)
     dt = x.dtype
@@ -352,27 +359,107 @@ def _segment_poses_loop(
         a = (z["axis"][0], z["axis"][1], z["axis"][2])
         xk = x[z["dof"]]
         zero = jnp.zeros_like(xk)
+        joint = jnp.stack([*matvec9(R, a), *t]) if joints else None
         if any_prismatic:
             d = matvec9(R, a)
             xp = jnp.where(z["prismatic"], xk, zero)
             t = tuple(t[i] + d[i] * xp for i in range(3))
         R = matmul9(R, axis_angle9(a, jnp.where(z["revolute"], xk, zero)))
-        return jnp.stack([*R, *t]), None
+        return jnp.stack([*R, *t]), joint
 
     def segment(pose, row):
         slots = {k: row[k] for k in ("axis", "dof", "revolute", "prismatic")}
-        g, _ = jax.lax.scan(slot, row["start"], slots)
+        g, joint = jax.lax.scan(slot, row["start"], slots)
         gp = pose[row["parent"]]
         Rp, tp = tuple(gp[i] for i in range(9)), tuple(gp[9 + i] for i in range(3))
         R, t = tuple(g[i] for i in range(9)), tuple(g[9 + i] for i in range(3))
         dv = matvec9(Rp, t)
         g = jnp.stack([*matmul9(Rp, R), *(tp[i] + dv[i] for i in range(3))])
-        return pose.at[row["index"]].set(g), None
+        return pose.at[row["index"]].set(g), joint
 
     identity = jnp.asarray([1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0], dt)
     pose = jnp.zeros((S + 1, 12), dt).at[S].set(identity)
-    pose, _ = jax.lax.scan(segment, pose, {**rows, "index": np.arange(S, dtype=np.int32)})
-    return pose[:S, :9].reshape(S, 3, 3), pose[:S, 9:]
+    pose, joint = jax.lax.scan(segment, pose, {**rows, "index": np.arange(S, dtype=np.int32)})
+    out = (pose[:S, :9].reshape(S, 3, 3), pose[:S, 9:])
+    return out + (joint[..., :3], joint[..., 3:]) if joints else out
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
+def _segment_poses_cpu(topology: Topology, rest_rotation, offset, dof_axis, x):
+    """:func:`_segment_poses_loop`, with a derivative in ``x`` written from the joints' world twists.
+
+    A revolute ``k`` (world axis ``w_k``, through the world point ``p_k``) turns every segment below it about that
+    line and a prismatic one (world direction ``d_k``) shifts them: with ``A (S, D)`` the static table of the
+    DOFs at or above each segment, ``Ω_s = Σ_k A_sk w_k ẋ_k`` (revolute ``k``) and ``ν_s = Σ_k A_sk (p_k × w_k)
+    ẋ_k`` (revolute) ``+ d_k ẋ_k`` (prismatic), and ``Ṙ_s = Ω_s × R_s`` (column by column), ``ṫ_s = Ω_s × t_s +
+    ν_s``. Reverse mode transposes this linear map (two products with ``Aᵀ`` and a dot per DOF) instead of
+    reversing the two loops. Tangents of the other arguments (body dimensions) go through
+    :func:`jax.jvp` of the loops and are added.
+    """
+    return _segment_poses_loop(topology, rest_rotation, offset, dof_axis, x)
+
+
+def _ancestry(topology: Topology) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(A (S, D), segment (D,), slot (D,))``: ``A_sk = 1`` where DOF ``k`` acts at segment ``s`` or above it; the
+    segment and slot (:func:`_slot_table`) of each DOF."""
+    S, D = topology.num_segments, topology.num_dofs
+    seg, slot = np.zeros(D, np.int32), np.zeros(D, np.int32)
+    for s, dofs in enumerate(topology.segment_dofs):
+        for j, k in enumerate(dofs):
+            seg[k], slot[k] = s, j
+    above = np.zeros((S, S), bool)  # above[s, r]: r is s or one of its ancestors
+    for s, p in enumerate(topology.parents):
+        above[s, s] = True
+        if p >= 0:
+            above[s] |= above[p]
+    return above[:, seg].astype(np.float32), seg, slot
+
+
+def _cross(a, b):
+    """``a × b`` over the last axis ``(..., 3)``, written out."""
+    return jnp.stack(
+        [
+            a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
+            a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+            a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0],
+        ],
+        -1,
+    )
+
+
+@functools.partial(_segment_poses_cpu.defjvp, symbolic_zeros=True)
+def _segment_poses_cpu_jvp(topology, primals, tangents):
+    rest_rotation, offset, dof_axis, x = primals
+    R, t, axis_loc, origin_loc = _segment_poses_loop(topology, *primals, joints=True)
+    A, seg, slot = _ancestry(topology)
+    parent = np.asarray(topology.parents, np.int32)[seg]  # -1: the root (its parent pose is the identity)
+    Rp = jnp.where((parent >= 0)[:, None, None], R[parent], jnp.eye(3, dtype=R.dtype))  # (D, 3, 3)
+    tp = jnp.where((parent >= 0)[:, None], t[parent], 0.0)  # (D, 3)
+    a, o = axis_loc[seg, slot], origin_loc[seg, slot]  # (D, 3) in the parent's frame
+    w = sum(Rp[:, :, j] * a[:, j, None] for j in range(3))  # world axes / directions
+    p = sum(Rp[:, :, j] * o[:, j, None] for j in range(3)) + tp  # world joint points
+    revolute = np.asarray([k == "R" for k in topology.dof_kinds])[:, None]
+    xt = tangents[3]
+    dR = dt = None
+    if not isinstance(xt, SymbolicZero):
+        xt = xt[:, None]
+        A = jnp.asarray(A, R.dtype)
+        omega = A @ jnp.where(revolute, w * xt, 0.0)  # (S, 3)
+        nu = A @ (jnp.where(revolute, _cross(p, w), w) * xt)
+        dR = jnp.stack([_cross(omega, R[:, :, c]) for c in range(3)], -1)
+        dt = _cross(omega, t) + nu
+    others = tangents[:3]
+    if not all(isinstance(z, SymbolicZero) for z in others):
+        zeros = [
+            jnp.zeros_like(v) if isinstance(z, SymbolicZero) else z
+            for v, z in zip(primals, tangents, strict=True)
+        ]
+        zeros[3] = jnp.zeros_like(x)
+        _, (eR, et) = jax.jvp(lambda *a: _segment_poses_loop(topology, *a), tuple(primals), tuple(zeros))
+        dR, dt = (eR, et) if dR is None else (dR + eR, dt + et)
+    if dR is None:
+        dR, dt = jnp.zeros_like(R), jnp.zeros_like(t)
+    return (R, t), (dR, dt)
 
 
 #: At most this many runs of equal segment index: :func:`transform_points` uses static slices, beyond it a gather.
@@ -425,7 +512,7 @@ def transform_points(
       R: ``(..., S, 3, 3)`` segment rotations; t: ``(..., S, 3)`` translations.
       points: ``(P, 3)`` local coordinates (may be traced: body dimensions are differentiable).
       segment_of_point: ``P`` static segment indices.
-      by_runs: False gathers each point's transform whatever the layout (a smaller program in reverse mode: the
+      by_runs: False takes each point's transform whatever the layout (a smaller program in reverse mode: the
         slices of the runs become one pad and one sum per run and coordinate there).
 
     Returns:

@@ -202,3 +202,26 @@ def test_loop_and_written_out_fk_agree(name):
     )
     np.testing.assert_array_equal(np.asarray(R1), np.asarray(R2))
     np.testing.assert_array_equal(np.asarray(t1), np.asarray(t2))
+
+
+def test_fk_derivative_from_joint_twists():
+    """The CPU form's derivative, written from the joints' world twists, against finite differences in the state
+    and, through the fallback, in the segment offsets (body dimensions), on parsec31 (rest rotations, prismatic
+    DOFs); and equal, up to rounding, to the automatic derivative of the loops (full25: test_fk_gradients)."""
+    from jaxmocap.parsec.model import parsec31_in_metres
+
+    with enable_x64(True):
+        model = parsec31_in_metres()
+        f64 = lambda a: jnp.asarray(a, jnp.float64)  # noqa: E731
+        offset, rest, axis = f64(model.offset), f64(model.rest_rotation), f64(model.dof_axis)
+        x = f64(model.rest_pose) + 0.3 * jax.random.normal(jax.random.key(5), (model.num_dofs,), jnp.float64)
+
+        def fk(form):
+            return lambda offset, x: form(model.topology, rest, offset, axis, x)
+
+        check_grads(jax.jit(fk(kinematics._segment_poses_cpu)), (offset, x), order=1, modes=["fwd", "rev"])
+        for jac in (jax.jacfwd, jax.jacrev):
+            ours = jax.jit(jac(fk(kinematics._segment_poses_cpu), argnums=(0, 1)))(offset, x)
+            auto = jax.jit(jac(fk(kinematics._segment_poses_loop), argnums=(0, 1)))(offset, x)
+            for a, b in zip(jax.tree_util.tree_leaves(ours), jax.tree_util.tree_leaves(auto), strict=True):
+                np.testing.assert_allclose(np.asarray(a), np.asarray(b), atol=1e-12)
