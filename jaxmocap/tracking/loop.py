@@ -33,7 +33,9 @@ programs side by side on two cores, and the step depends on the initial pose onl
 filter and state of the right structure (``setup.compile_arguments(key, observation)``; None where the structure
 needs the initial pose, e.g. colour references); the first call of the step then finds it compiled. A setup whose
 input has detections but whose first pose came from elsewhere compiles the re-initialisation from detections in
-a third thread (``setup.warm_reinit(how)``), joined before the first frame.
+a third thread (``setup.warm_reinit(how)``), joined once the step is compiled. A resumed run, which has no first
+pose to fit, compiles that fit the same way and runs the filter's re-initialisation once (a fresh run's start
+compiles it), so that its first track loss compiles nothing either.
 
 **No frame compiles.** Every frame has the first one's shapes, and whatever runs per frame is compiled once (the
 prediction is one program, :func:`predict`; host arrays go to the device by ``jax.device_put``, since
@@ -228,6 +230,30 @@ class TrackingLoop:
         ahead.join()
         return ahead.done
 
+    def _start_warm(self, how: str | None) -> None:
+        """Compile the re-initialisation's programs in a thread (``setup.warm_reinit(how)``; ``how``: how the
+        first pose was found, None for a resumed run), joined by :meth:`_compile`."""
+        warm = getattr(self.setup, "warm_reinit", None)
+        if warm is None:
+            return
+
+        def work():
+            try:
+                warm(how)
+            except Exception:  # a re-initialisation then compiles, and raises what is wrong
+                pass
+
+        self._warm = threading.Thread(target=work, name="jaxmocap-warm", daemon=True)
+        self._warm.start()
+
+    def _reinit_state(self, t: int, mean: np.ndarray) -> State:
+        """The particle set re-initialised at frame ``t`` around ``mean`` ``(D,)``, ``reinit_widen`` times the
+        diffusion spread."""
+        dt = self.setup.model.offset.dtype
+        return self.filter.init(
+            self._key(t, 2), jnp.asarray(mean, dt), jnp.asarray(self.o.reinit_widen * self.setup.std, dt)
+        )
+
     def _key(self, t: int, purpose: int = 0):
         k = jax.random.fold_in(jax.random.key(int(self.o.seed)), int(t))
         return k if purpose == 0 else jax.random.fold_in(k, purpose)
@@ -257,17 +283,7 @@ class TrackingLoop:
                 check(t)
             self._compile_ahead(t, obs[0])
             x0, spread, how = self.setup.initial_state(t, masks, obs[2])
-            warm = getattr(self.setup, "warm_reinit", None)
-            if warm is not None:  # joined once the step is compiled
-
-                def work(warm=warm, how=how):
-                    try:
-                        warm(how)
-                    except Exception:  # a re-initialisation then compiles, and raises what is wrong
-                        pass
-
-                self._warm = threading.Thread(target=work, name="jaxmocap-warm", daemon=True)
-                self._warm.start()
+            self._start_warm(how)
             return i, obs, skipped, np.asarray(x0, np.float64), spread, how
         raise MocapInputError(None, "no frame of the input could be read")
 
@@ -317,6 +333,9 @@ class TrackingLoop:
             compiled = self._jitted.lower(self.filter, self._key(t), state, tobs).compile()
         self._compiled = True
         self.compile_s = time.monotonic() - t0
+        if self._warm is not None:  # the re-initialisation's programs (:meth:`_start_warm`)
+            self._warm.join()
+            self._warm = None
         n = setup.num_particles
         resources.check_program(
             compiled, f"--particles {particles_text(n)}: {what}", n if isinstance(n, int) else max(n)
@@ -342,12 +361,15 @@ class TrackingLoop:
             t0 = frames[start]
             state = setup.start(self.filter, self._key(t0, 1), x0, spread, pending[0])
             self._compile(t0, state, pending[0])
-            if self._warm is not None:  # the re-initialisation's programs (``setup.warm_reinit``)
-                self._warm.join()
             p.update(start=start, pending=pending, skipped=skipped, x0=x0, how=how, state=state)
             p["loss"] = LossTracker(o, x0)
         else:
             start, x0, state, loss = self._resume(ck)
+            if setup.track_loss:
+                # the re-initialisation run once (result unused), as a fresh run's start does, so that a first
+                # track loss compiles nothing; the fit to detections compiled in a thread (:meth:`_compile` joins)
+                self._reinit_state(frames[min(start, len(frames) - 1)], x0)
+                self._start_warm(None)
             p.update(start=start, x0=x0, state=state, loss=loss, skipped=[], how=None)
             p["pending"] = self._prefetch(start)
         interrupts.check()  # a signal whose exception was swallowed: stop before writing anything
@@ -389,9 +411,9 @@ class TrackingLoop:
         model = setup.model
         dt = model.offset.dtype
         moving = velocity_dofs(model, getattr(o, "velocity_dofs", "translation"))
-        circ = getattr(self.filter, "circular", None)
-        circular = np.zeros(model.num_dofs, bool) if circ is None else np.asarray(circ, bool)
-        circ = jax.device_put(circular)
+        flags = getattr(self.filter, "circular", None)
+        circular = np.zeros(model.num_dofs, bool) if flags is None else np.asarray(flags, bool)
+        circular_dev = jax.device_put(circular)
         frames = setup.frames
         stats = {
             "reinitialisations": 0,
@@ -472,7 +494,9 @@ class TrackingLoop:
                 if len(hist) == 2 and hist[0][0] == t - 2 and hist[1][0] == t - 1 and setup.velocity > 0:
                     step = angle_difference(hist[1][1], hist[0][1], circular)
                     v = np.where(moving, step, 0.0) * setup.velocity
-                state = state._replace(particles=predict(state.particles, jax.device_put(v.astype(dt)), circ))
+                state = state._replace(
+                    particles=predict(state.particles, jax.device_put(v.astype(dt)), circular_dev)
+                )
                 if not self._compiled:  # a resumed run compiles at its first readable frame
                     self._compile(t, state, tobs)
                 state, info, joints = self._step(self.filter, self._key(t), state, tobs)
@@ -498,11 +522,7 @@ class TrackingLoop:
                         stats["lost_frames"] += 1
                         mean, reinit_source = setup.reinit_mean(fd, masks, loss.last_good)
                         if mean is not None:
-                            state = self.filter.init(
-                                self._key(t, 2),
-                                jnp.asarray(mean, dt),
-                                jnp.asarray(o.reinit_widen * setup.std, dt),
-                            )
+                            state = self._reinit_state(t, mean)
                             stats["reinitialisations"] += 1
                             loss.new_track()
                         else:

@@ -437,10 +437,10 @@ class TrackSetup:
             return init_mod.default_standing(self.model, self.source.rig), 3.0, "default"
         return init_mod.initial_state(self.model, self.source, self.features.rig, self.o.init, t0, masks, fd)
 
-    def warm_reinit(self, how: str) -> None:
+    def warm_reinit(self, how: str | None) -> None:
         """Compile ahead the re-initialisation from detections (:func:`jaxmocap.tracking.init.warm_keypoint_pose`)
-        when the input has detections but the first pose (``how``) did not come from them: in a thread of the
-        loop's, before the first frame (:mod:`jaxmocap.tracking.loop`)."""
+        when the input has detections but the first pose (``how``; None: a resumed run) did not come from them: in
+        a thread of the loop's, before the first frame is tracked (:mod:`jaxmocap.tracking.loop`)."""
         if how != "ik-keypoints" and self.source.has_keypoints and self.o.proposal != "head-hands":
             init_mod.warm_keypoint_pose(
                 self.model, self.source.rig, bool(getattr(self.source, "has_depth", False))

@@ -310,6 +310,43 @@ def test_no_frame_compiles_not_even_a_reinitialisation_from_detections(sequence,
     assert not any("compiled_programs" in r for r in recs)
 
 
+class _MasksGone(_NoFirstDetections):
+    """No detections in frame 0 and no foreground in frame 4 (its detections kept)."""
+
+    def read(self, t, masks=True, depth=True):
+        fd = super().read(t, masks, depth)
+        return fd._replace(masks=[np.zeros_like(m) for m in fd.masks]) if t == 4 else fd
+
+
+class _StopAt3(_MasksGone):
+    def read(self, t, masks=True, depth=True):
+        if t == 3:
+            raise KeyboardInterrupt
+        return super().read(t, masks, depth)
+
+
+def test_a_resumed_run_compiles_its_reinitialisation_before_tracking(sequence, tmp_path):
+    """Interrupted at frame 3 and resumed (in-memory caches cleared, as in a new process): frame 4 shows no
+    foreground and is re-initialised from its detections, the run's first re-initialisation since the resume;
+    neither the keypoint fit nor the filter's re-initialisation compiles there (51 programs before they were
+    compiled ahead on resume, 6 with the fit alone)."""
+    opts = dict(
+        model="upper9", cues="coverage", particles=40, layers=2, frames="0:6", init="ik", loss_frames=1
+    )
+    with pytest.raises(KeyboardInterrupt):
+        tracker.Tracker(
+            _StopAt3(SequenceSource(sequence), blank=()), tmp_path, TrackOptions(**opts), quiet=True
+        ).run()
+    jax.clear_caches()
+    src = _MasksGone(SequenceSource(sequence), blank=())
+    summary = tracker.Tracker(src, tmp_path, TrackOptions(resume=True, **opts), quiet=True).run()
+    recs = json.loads((tmp_path / "diagnostics.json").read_text())["frames"]
+    assert summary["resumed_at"] is not None and summary["resumed_at"] < 4
+    assert [r["frame"] for r in recs if r["reinitialised"]] == [4]
+    assert recs[4]["reinit_source"] == "keypoints"
+    assert summary["compiled_after_first_frame"] == 0
+
+
 class _Interrupting(_Blanked):
     """A source that raises KeyboardInterrupt (Ctrl-C) when frame ``stop`` is read."""
 
