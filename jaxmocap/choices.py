@@ -31,6 +31,8 @@ PROPOSALS = ("auto", "head-hands")
 #: DOFs of the tracker's constant-velocity prediction (``--velocity-dofs``): the root's translation, all of the
 #: root's DOFs, every DOF.
 VELOCITY_DOFS = ("translation", "root", "all")
+#: Refinements of the filter's estimate on the frame's detections (``--refine``; :mod:`jaxmocap.tracking.refine`).
+REFINEMENTS = ("auto", "none", "estimate", "track")
 #: β rules of the annealed filters (``--annealing``).
 ANNEALINGS = ("auto", "iros2007")
 #: 2D pose detectors of videos given without keypoints (``--detector``; :mod:`jaxmocap.io.detect`).

@@ -582,6 +582,17 @@ def _add_tracking_commands(sub) -> None:
         "its translation only (translation), or every DOF (all)",
     )
     tr.add_argument(
+        "--refine",
+        choices=choices.REFINEMENTS,
+        help="refine the filter's estimate on each frame's 2D detections: the written pose (estimate), the "
+        "particles too (track), none, or auto (default: the best measured for the input, see the README)",
+    )
+    tr.add_argument(
+        "--refine-prior",
+        type=float,
+        help="weight of the filter's estimate in the refinement (default 1; larger stays nearer the filter)",
+    )
+    tr.add_argument(
         "--proposal",
         choices=choices.PROPOSALS,
         help="detection-driven pose of icondensation / iapf and of re-initialisations: auto (keypoint IK, else "

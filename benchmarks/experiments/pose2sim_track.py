@@ -142,6 +142,8 @@ def track(out: pathlib.Path, cams, a) -> dict:
         cues=a.cues,
         seed=a.seed,
         frames=a.frames,
+        **({} if a.refine is None else {"refine": a.refine}),
+        **({} if a.refine_prior is None else {"refine_prior": a.refine_prior}),
     )
     wall = time.monotonic() - t0
     src = open_project(project, detector="blazepose" if a.detector else "none", frames=a.frames)
@@ -412,6 +414,8 @@ def main(argv=None) -> int:
     ap.add_argument("--layers", type=int, default=5)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--cues", default=CUES, help=f"cues and weights (default {CUES})")
+    ap.add_argument("--refine", help="the tracker's refinement on the detections (default: the library's)")
+    ap.add_argument("--refine-prior", type=float, help="its prior weight (default: the library's)")
     ap.add_argument("--pair-only", action="store_true", help="only the 2-camera run")
     ap.add_argument("--no-pair", action="store_true", help="only the 4-camera run")
     ap.add_argument(

@@ -169,12 +169,16 @@ class TrackingLoop:
         self.compiled_ahead = False
 
         joints_of = getattr(self.setup, "estimate_joints", None)
+        refine = getattr(self.setup, "refine_step", None)
 
         def step(filt, key, state, tobs):
-            """The filter step, and the joints of its estimate when the setup computes them on the device
+            """The filter step, its estimate refined on the frame's detections when the setup does so
+            (``refine_step``), and the joints of the estimate when the setup computes them on the device
             (``estimate_joints``: no second dispatch per frame for the outputs)."""
             self.trace_count += 1
             new, info = filt.step(key, state, tobs)
+            if refine is not None:
+                new, info = refine(new, info, tobs)
             return new, info, (None if joints_of is None else joints_of(info.estimate))
 
         # the filter (a pytree: its arrays, schedule values and likelihood leaves are data) is an argument, not a

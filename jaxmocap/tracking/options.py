@@ -40,6 +40,7 @@ __all__ = [
     "build_model",
     "default_cues",
     "default_layers",
+    "default_refine",
     "default_particles",
     "diffusion_std",
     "dump_config",
@@ -149,6 +150,22 @@ def default_cues(model_name: str, has_depth: bool, has_keypoints: bool) -> tuple
     return tuple(out)
 
 
+def default_refine(num_views: int, has_keypoints: bool) -> tuple[str, float]:
+    """``(refine, refine_prior)`` of ``refine = "auto"`` / ``refine_prior = None`` (:mod:`jaxmocap.tracking.refine`),
+    per input kind, as measured in ``benchmarks/results/accuracy_default.md`` (six synthetic motions, realistic
+    input, 3 seeds): ``track`` with detections in two or more views, at λ = :data:`REFINE_PRIOR_VIEWS` with three or
+    more views and at λ = :data:`REFINE_PRIOR_PAIR` with a stereo pair, whose detections fix depth poorly; ``none``
+    without detections."""
+    if not has_keypoints or num_views < 2:
+        return "none", REFINE_PRIOR_VIEWS
+    return "track", REFINE_PRIOR_VIEWS if num_views >= 3 else REFINE_PRIOR_PAIR
+
+
+#: Prior weight λ of the refinement with three or more views, and with two (:func:`default_refine`).
+REFINE_PRIOR_VIEWS = 1.0
+REFINE_PRIOR_PAIR = 100.0
+
+
 def cues_text(cues) -> str:
     """``[("foreground", 1.0), ("coverage", 4.0)]`` → ``"foreground, coverage:4"`` (the ``--cues`` syntax)."""
     return ", ".join(n if w == 1 else f"{n}:{w:g}" for n, w in cues)
@@ -195,6 +212,9 @@ class TrackOptions:
     random walk only), applied to the DOFs of ``velocity_dofs`` (``root``: the root's translation and angles, so
     that a turning body's heading is predicted to go on turning; ``translation``: the translation only, as before
     2026-11; ``all``: every DOF; angle steps of full-turn DOFs wrapped into [−π, π));
+    ``refine``: the filter's estimate refined on each frame's detections (:mod:`jaxmocap.tracking.refine`):
+    ``estimate`` (the written pose), ``track`` (the particles moved with it), ``none``, or ``auto``
+    (:func:`default_refine`); ``refine_prior``: its prior weight λ;
     ``diffusion_scale``: multiplies :func:`diffusion_std`; ``survival_target``: α of
     Deutscher's rule; ``loss_*``/``reinit_widen``: track loss (module docstring); ``on_bad_frame``: ``skip`` or
     ``stop``; ``overlay``: MP4 per view; ``resume``/``overwrite``: what to do with a previous run in the output
@@ -232,6 +252,8 @@ class TrackOptions:
     downsample: int = 1
     velocity: float = 0.5
     velocity_dofs: str = "root"
+    refine: str = "auto"
+    refine_prior: float | None = None
     diffusion_scale: float = 1.0
     survival_target: float = 0.5
     samples: int = 128
@@ -311,6 +333,8 @@ _IDENTITY_DEFAULTS = {
     "detection_fraction": None,
     "detector": "auto",
     "velocity_dofs": "translation",
+    "refine": "none",
+    "refine_prior": None,
 }
 
 

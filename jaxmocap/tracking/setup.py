@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmocap.choices import ANNEALINGS, DETECTORS, PROPOSALS, VELOCITY_DOFS, parse_frames
+from jaxmocap.choices import ANNEALINGS, DETECTORS, PROPOSALS, REFINEMENTS, VELOCITY_DOFS, parse_frames
 from jaxmocap.errors import MocapInputError
 from jaxmocap.filters.annealing import Schedule
 from jaxmocap.filters.factory import GRADIENT_FILTERS, make_filter, partition_counts
@@ -41,11 +41,13 @@ from jaxmocap.tracking.options import (
     default_cues,
     default_layers,
     default_particles,
+    default_refine,
     diffusion_std,
     parse_cues,
 )
 from jaxmocap.tracking.outputs import check_export_options
 from jaxmocap.tracking.progress import warn
+from jaxmocap.tracking.refine import REFINE_ROBUST_PX, KeypointRefiner, refine_pairs
 
 __all__ = ["ObservationLoglik", "TrackSetup", "frame_range", "observation_loglik"]
 
@@ -207,6 +209,8 @@ class TrackSetup:
             )
         if o.annealing not in ANNEALINGS:
             raise ValueError(f"unknown annealing {o.annealing!r}; choose one of {', '.join(ANNEALINGS)}")
+        if o.refine not in REFINEMENTS:
+            raise ValueError(f"unknown refine {o.refine!r}; choose one of {', '.join(REFINEMENTS)}")
         if o.detector not in DETECTORS:
             raise ValueError(f"unknown detector {o.detector!r}; choose one of {', '.join(DETECTORS)}")
         fixed = Schedule.iros2007() if o.annealing == "iros2007" else None
@@ -238,6 +242,25 @@ class TrackSetup:
         self.num_particles = list(counts) if isinstance(n, (list, tuple)) else int(n)
         self.std = diffusion_std(self.model, source.fps) * float(o.diffusion_scale)
         self.likelihood = self._build_likelihood()
+        self.refine, prior = default_refine(source.rig.num_views, source.has_keypoints)
+        self.refine = self.refine if o.refine == "auto" else o.refine
+        self.refine_prior = prior if o.refine_prior is None else float(o.refine_prior)
+        if self.refine != "none" and not source.has_keypoints:
+            raise ValueError(f"--refine {self.refine} needs 2D keypoints (--keypoints)")
+        self.refiner = None
+        if self.refine != "none":
+            f = self.features.extractor.config.downsample
+            self.refiner = KeypointRefiner(
+                self.model, self.features.rig, refine_pairs(self.model), init_mod.KEYPOINT_SIGMA_PX / f,
+                self.refine_prior, self.refine, robust_px=REFINE_ROBUST_PX / f,
+            )  # fmt: skip
+
+    def refine_step(self, state, info, tobs):
+        """The filter's ``(State, Info)`` after a frame with its estimate refined on the frame's detections
+        (:mod:`jaxmocap.tracking.refine`; traced into the step); unchanged without a refinement."""
+        if self.refiner is None:
+            return state, info
+        return self.refiner(state, info, tobs.image.keypoints2d)
 
     def _check_camera_order(self, num: int = 16) -> None:
         """Inputs whose calibration no detections have checked (``source.check_silhouettes``): the centroids of

@@ -20,6 +20,7 @@ from jaxmocap.synth import generate as synth
 from jaxmocap.tracking import smoothing, tracker
 from jaxmocap.tracking.options import (
     FILTERS,
+    REFINE_PRIOR_PAIR,
     TrackOptions,
     default_cues,
     default_layers,
@@ -27,6 +28,7 @@ from jaxmocap.tracking.options import (
     diffusion_std,
     parse_cues,
 )
+from jaxmocap.tracking.setup import TrackSetup
 
 # ---------------------------------------------------------------------------------------------------------------
 # The filter factory on a Gaussian likelihood
@@ -295,12 +297,12 @@ def test_no_frame_compiles_not_even_a_reinitialisation_from_detections(sequence,
     lost (``loss_ratio`` 0.1 of a reference learnt over one frame) and re-initialised from its detections: those
     programs are compiled before the first frame (``setup.warm_reinit``), and no frame after the first lowers a
     program on the loop's thread (the in-memory caches are cleared first, so that earlier tests cannot have
-    compiled them)."""
+    compiled them). The estimate is refined on the detections in the step (``refine="track"``)."""
     jax.clear_caches()
     src = _NoFirstDetections(SequenceSource(sequence), blank=())
     opts = TrackOptions(
         model="upper9", cues="coverage", particles=40, layers=2, frames="0:6", init="ik",
-        loss_ratio=0.1, loss_frames=1, loss_window=1,
+        loss_ratio=0.1, loss_frames=1, loss_window=1, refine="track",
     )  # fmt: skip
     summary = tracker.Tracker(src, tmp_path, opts, quiet=True).run()
     recs = json.loads((tmp_path / "diagnostics.json").read_text())["frames"]
@@ -308,6 +310,20 @@ def test_no_frame_compiles_not_even_a_reinitialisation_from_detections(sequence,
     assert [r["reinit_source"] for r in recs if r["reinitialised"]].count("keypoints") >= 2
     assert summary["compiled_after_first_frame"] == 0
     assert not any("compiled_programs" in r for r in recs)
+
+
+def test_refinement_options_are_checked_against_the_input(sequence):
+    """``refine``: a known choice, and detections to refine on; ``auto`` refines a stereo pair's track with the
+    stronger prior, and nothing without detections."""
+    with pytest.raises(ValueError, match="unknown refine"):
+        TrackSetup(SequenceSource(sequence), TrackOptions(refine="smooth", frames="0:2"))
+    with pytest.raises(ValueError, match="needs 2D keypoints"):
+        TrackSetup(SequenceSource(sequence, detections=False), TrackOptions(refine="track", frames="0:2"))
+    assert TrackSetup(SequenceSource(sequence, detections=False), TrackOptions(frames="0:2")).refiner is None
+    pair = TrackSetup(SequenceSource(sequence), TrackOptions(frames="0:2"))
+    assert (pair.refine, pair.refine_prior) == ("track", REFINE_PRIOR_PAIR)
+    given = TrackSetup(SequenceSource(sequence), TrackOptions(refine="track", refine_prior=2.0, frames="0:2"))
+    assert (given.refiner.mode, given.refiner.prior) == ("track", 2.0)
 
 
 class _MasksGone(_NoFirstDetections):
