@@ -144,14 +144,14 @@ def _soft_step(z: jnp.ndarray) -> jnp.ndarray:
 
 def _prepare_depth(obs: Observation, ctx: CueContext, cache: dict):
     """Observed depth where the pixel is foreground (``F ≥ ½``; any measured pixel without a foreground map),
-    else 0: one map, so the cue reads one value per sample. With ``bilinear=True`` the map and its validity
-    ``[D > 0]`` stacked as ``(V, H, W, 2)`` planes (one bilinear read gives both)."""
+    else 0: one map, so the cue reads one value per sample. With ``bilinear=True`` its texel quads
+    (:func:`jaxmocap.likelihood.maps.texel_quads`): one gather reads a sample's four texels."""
     D = obs.depth.astype(jnp.float32)
     if obs.has("foreground"):
         fg = obs.foreground.astype(jnp.float32) * _unit_scale(obs.foreground) >= 0.5
         D = jnp.where(fg, D, 0.0)
     if ctx.params.get("bilinear", False):
-        return {"depth_valid": jnp.stack([D, (D > 0).astype(D.dtype)], -1)}
+        return {"depth_quads": maps.texel_quads(D)}
     return {"depth": D}
 
 
@@ -173,11 +173,12 @@ def depth(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
     """
     soft = ctx.params.get("soft", False)
     if ctx.params.get("bilinear", False):
-        planes = ctx.aux["depth_valid"]
-        i00, fu, fv, inside = maps.bilinear_index(g.surface_uv, planes.shape[:3])
-        read = maps.gather_bilinear(planes, i00, fu, fv)  # (V, P, 2)
-        valid = jnp.where(inside, read[..., 1], 0.0)
-        r = g.surface_depth - read[..., 0] / jnp.maximum(read[..., 1], 1e-6)
+        i00, fu, fv, inside = maps.bilinear_index(g.surface_uv, obs.depth.shape)
+        q = maps.gather(ctx.aux["depth_quads"], i00)  # (V, P, 4) texels
+        w = maps.bilinear_weights(fu, fv)
+        share = jnp.sum(w * (q > 0), axis=-1)  # m̄
+        valid = jnp.where(inside, share, 0.0)
+        r = g.surface_depth - jnp.sum(w * q, axis=-1) / jnp.maximum(share, 1e-6)
         d = valid * _depth_penalty(r, ctx, soft) + (1.0 - valid) * DEPTH_PENALTY_M
     else:
         Dm = maps.gather(ctx.aux["depth"], g.surface_index)
