@@ -183,7 +183,9 @@ def table(rows: list[dict]) -> list[str]:
 def main(argv=None) -> str:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--models", nargs="+", default=["upper14", "full25"])
-    ap.add_argument("--cues", nargs="+", default=list(CUE_SETS), choices=list(CUE_SETS), help="cue sets (labels)")
+    ap.add_argument(
+        "--cues", nargs="+", default=list(CUE_SETS), choices=list(CUE_SETS), help="cue sets (labels)"
+    )
     ap.add_argument("--particles", nargs="+", type=int, default=[200, 1000])
     ap.add_argument("--rounds", type=int, default=9)
     ap.add_argument("--size", default="320x240")

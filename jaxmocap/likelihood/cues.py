@@ -406,7 +406,10 @@ def silhouette_divergence(g: Geometry, obs: Observation, ctx: CueContext) -> jnp
     ``soft=True``: ``inside_v`` is the soft silhouette :func:`_soft_silhouette_cover`, each primitive piece's
     coverage the logistic of its signed distance to its outline over ``scale_px`` τ (default 1 pixel, measured
     with the view's focal length ``K₀₀``): differentiable in the pose, and the hard cue as τ → 0. The samples
-    are fixed by the observation, so ``bilinear`` has no effect here.
+    are fixed by the observation, so ``bilinear`` has no effect here. The soft energy is larger than the hard one
+    where limbs are a few τ wide (a sample inside a limb 2 px from its outline is covered by ≈ σ(2) = 0.88 only),
+    and a conic's first-order distance a few pixels off a thin outline can be a fraction of the true one, so the
+    soft silhouette reaches farther than τ past the caps: a likelihood built on it is its own, not the hard one's.
     """
     a = ctx.aux
     R = jnp.asarray(ctx.rig.R, a["x"].dtype)
