@@ -409,7 +409,8 @@ def silhouette_divergence(g: Geometry, obs: Observation, ctx: CueContext) -> jnp
     are fixed by the observation, so ``bilinear`` has no effect here. The soft energy is larger than the hard one
     where limbs are a few τ wide (a sample inside a limb 2 px from its outline is covered by ≈ σ(2) = 0.88 only),
     and a conic's first-order distance a few pixels off a thin outline can be a fraction of the true one, so the
-    soft silhouette reaches farther than τ past the caps: a likelihood built on it is its own, not the hard one's.
+    soft silhouette reaches farther than τ past the caps: a likelihood built on it is its own, not the hard one's
+    (at the true pose of a ``full25`` scene at 160×120, limbs 3–6 px wide: 0.14 per view, the hard cue 0).
     """
     a = ctx.aux
     R = jnp.asarray(ctx.rig.R, a["x"].dtype)
