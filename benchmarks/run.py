@@ -424,7 +424,8 @@ OTHER_RESULTS: dict[str, str] = {
     "scale.md": "notes; the tables are printed by `python benchmarks/perf/bench_scale.py` (its commands are in "
     "the section Measurements)",
     "gradients_shape_notebooks.md": "notes; numbers from `python benchmarks/experiments/hybrid_vs_apf.py`, "
-    "`jaxmocap track --filter hybrid` and the notebooks in `notebooks/`",
+    "`python benchmarks/perf/grad_cost.py` (its section's command), `jaxmocap track --filter hybrid` and the "
+    "notebooks in `notebooks/`",
 }
 
 

@@ -21,7 +21,8 @@ FILTERS = (
 ANNEALED = ("apf", "iapf", "hierarchical", "fbapf", "fbapf2", "fbapf3", "m-apf", "hybrid", "apf-refine")
 #: Filters without annealing layers.
 SINGLE_LAYER = ("sir", "icondensation", "partitioned")
-#: Filters that differentiate the likelihood (:mod:`jaxmocap.filters.hybrid`): their cues use bilinear lookups.
+#: Filters that differentiate the likelihood (:mod:`jaxmocap.filters.hybrid`): their cues read maps bilinearly and
+#: use their smooth tests (``cues.DIFFERENTIABLE``).
 GRADIENT_FILTERS = ("hybrid", "apf-refine")
 #: Filters that split the DOFs into groups, one particle count per group.
 PARTITIONED = ("partitioned", "hierarchical")

@@ -10,8 +10,10 @@ same particles, in the same process:
   by the tracker's own setup (:class:`jaxmocap.tracking.setup.TrackSetup` with ``--filter hybrid``: the cues read
   bilinearly, as the gradient filters have them);
 * the likelihood: the object the filter receives (``TrackSetup.loglik``), per model (``upper14``, ``full25``) and
-  cue set (:data:`CUE_SETS`: the default set of ``jaxmocap track`` less ``depth``, which has no gradient; the
-  silhouette cues with the 2D keypoints; each differentiable cue of those alone);
+  cue set (:data:`CUE_SETS`: the default image cues of ``jaxmocap track``, without and with ``depth`` (in the
+  defaults of a full-body sequence with depth maps; its smooth variant, as the gradient filters take it), and with
+  the default ``keypoints`` as well: the full default set; the silhouette cues with the 2D keypoints; each
+  differentiable cue of those alone);
 * the particles: ``N`` (200 and 1000) states around the first frame's initial pose (the ground truth's fit), with
   the spread of the tracker's diffusion;
 * the programs, each compiled once: ``forward`` = the likelihood ``loglik(X, tobs, layer)``; ``fast`` =
@@ -23,7 +25,8 @@ same particles, in the same process:
   (the first runs after the other programs have evicted its data from the caches); the table gives the medians
   over the rounds and the ratios of the medians; the load average is recorded at the start and the end.
 
-    python benchmarks/perf/grad_cost.py [--models upper14 full25] [--particles 200 1000] [--rounds 9]
+    python benchmarks/perf/grad_cost.py [--models upper14 full25] [--cues LABEL ...] [--particles 200 1000]
+                                        [--rounds 9]
                                         [--general] [--against REV] [--out benchmarks/results/grad_cost.md] [--quick]
 
 ``--against REV`` adds, on the default set, the value and gradient of the ``jaxmocap`` package at git revision
@@ -48,6 +51,9 @@ import common  # noqa: E402
 #: label -> ``--cues`` of the cue sets measured (keypoints weighted as the pose2sim experiment weighs them)
 CUE_SETS = {
     "track default": "foreground,edge_distance,coverage:4",
+    "track default + depth": "foreground,edge_distance,coverage:4,depth",
+    "full default": "foreground,edge_distance,coverage:4,depth,keypoints:32",
+    "depth": "depth",
     "keypoints + silhouette": "foreground,coverage:4,keypoints:4",
     "foreground": "foreground",
     "edge_distance": "edge_distance",
@@ -177,7 +183,9 @@ def table(rows: list[dict]) -> list[str]:
 def main(argv=None) -> str:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--models", nargs="+", default=["upper14", "full25"])
-    ap.add_argument("--cues", nargs="+", default=list(CUE_SETS), choices=list(CUE_SETS))
+    ap.add_argument(
+        "--cues", nargs="+", default=list(CUE_SETS), choices=list(CUE_SETS), help="cue sets (labels)"
+    )
     ap.add_argument("--particles", nargs="+", type=int, default=[200, 1000])
     ap.add_argument("--rounds", type=int, default=9)
     ap.add_argument("--size", default="320x240")

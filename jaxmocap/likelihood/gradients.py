@@ -7,9 +7,11 @@ The composed log-likelihood of :mod:`jaxmocap.likelihood.compose`,
 is a pure JAX function of the state ``x (D,)``, of the cameras (the ``rig`` leaves of the
 :class:`~jaxmocap.likelihood.compose.Likelihood`) and of the body dimensions (the ``model`` and flesh-point leaves, which
 :func:`jaxmocap.geometry.body.full25` and the other presets build from a dimension dict with ``jax.numpy``). Its gradient
-exists wherever the cues are differentiable: ``edge_distance``, ``foreground`` and ``edges`` with
-``params={"bilinear": True}``, ``keypoints``, ``blobs3d``, ``ground`` and ``interpenetration`` (see
-:mod:`jaxmocap.likelihood.cues`); the other cues are piecewise constant and contribute a zero gradient almost everywhere.
+exists wherever the cues are differentiable: every cue in its differentiable configuration
+(:data:`jaxmocap.likelihood.cues.DIFFERENTIABLE`: the map cues with ``params={"bilinear": True}``, the colour
+histogram, ``edge_fraction``, ``depth`` and ``silhouette_divergence`` with ``soft=True`` as well; ``keypoints``,
+``blobs3d``, ``ground``, ``interpenetration`` and ``coverage`` always); in their default configurations the map and
+threshold cues are piecewise constant and contribute a zero gradient almost everywhere.
 
 Three groups of parameters:
 

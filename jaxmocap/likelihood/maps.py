@@ -190,6 +190,19 @@ def _bilinear_jvp(scale, primals, tangents):
     return out, tangent
 
 
+def texel_quads(maps: jnp.ndarray) -> jnp.ndarray:
+    """``(V·H·W, 4)`` texel quads of ``maps (V, H, W)`` (:func:`_quads`): :func:`gather` at a :func:`bilinear_index`
+    reads the four texels ``m₀₀, m₀₁, m₁₀, m₁₁`` of each sample in one gather, for a cue that combines them
+    otherwise than by :func:`gather_bilinear` (with :func:`bilinear_weights`)."""
+    return _quads(maps)
+
+
+def bilinear_weights(fu: jnp.ndarray, fv: jnp.ndarray) -> jnp.ndarray:
+    """``(..., 4)`` bilinear weights ``((1−fu)(1−fv), fu(1−fv), (1−fu) fv, fu fv)`` of the texels of
+    :func:`texel_quads`, differentiable in ``fu``, ``fv``."""
+    return jnp.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv], -1)
+
+
 def lookup_bilinear(maps: jnp.ndarray, uv: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
     """Bilinear interpolation of ``maps (V, H, W)`` at ``uv (V, P, 2)``; differentiable in ``uv``.
 

@@ -326,19 +326,25 @@ class TrackSetup:
             preset = self.preset.schedule
         table = lk.schedule_preset(preset, names, self.layers)  # (L, C): λ_c(l)
         gradient = o.filter in GRADIENT_FILTERS
-        if gradient:
+        if (
+            gradient
+        ):  # every cue in its differentiable configuration (cues.DIFFERENTIABLE); one without is refused
             flat = [n for n in names if DIFFERENTIABLE.get(n) == "no"]
             if flat:
                 raise ValueError(
                     f"the {o.filter} filter needs a differentiable likelihood, but cue(s) {', '.join(flat)} "
-                    "are piecewise constant in the pose; choose others with --cues (differentiable: "
+                    "are piecewise constant in the pose and have no differentiable variant; choose others with "
+                    "--cues (differentiable: "
                     + ", ".join(n for n, d in DIFFERENTIABLE.items() if d != "no")
                     + ")"
                 )
         cue_objs = []
         for n, w in self.cues:
             params = {}
-            if gradient and DIFFERENTIABLE[n] in ("bilinear", "soft"):
+            if gradient and DIFFERENTIABLE[n] in (
+                "bilinear",
+                "soft",
+            ):  # bilinear reads; "soft": smooth tests too
                 params = {"bilinear": True, **({"soft": True} if DIFFERENTIABLE[n] == "soft" else {})}
             if n == "keypoints":
                 pairs = tuple((j, k) for j, k in init_mod.KEYPOINT_OF.items() if j in self.model.joint_names)

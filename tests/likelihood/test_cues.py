@@ -36,17 +36,20 @@ COLOURS = np.array(
 BACKGROUND = 0.55
 
 
-def _rig(dist=None):
+def _rig(dist=None, scale=1):
+    """The stereo pair, ``W × H`` images (``scale`` times that: the same views at another resolution)."""
     Rs, ts = zip(*[look_at(np.array([3.0, y, 1.3]), [0.0, 0.0, 1.0]) for y in (-0.15, 0.15)], strict=True)
-    K = np.array([[140.0, 0.0, 79.5], [0.0, 140.0, 59.5], [0.0, 0.0, 1.0]])
+    w, h = int(W * scale), int(H * scale)
+    f = 140.0 * scale
+    K = np.array([[f, 0.0, (w - 1) / 2], [0.0, f, (h - 1) / 2], [0.0, 0.0, 1.0]])
     d = np.zeros((2, 5)) if dist is None else np.asarray(dist)
-    return camera.from_opencv(np.stack([K, K]), d, np.stack(Rs), np.stack(ts), image_size=[(W, H)] * 2)
+    return camera.from_opencv(np.stack([K, K]), d, np.stack(Rs), np.stack(ts), image_size=[(w, h)] * 2)
 
 
 def _renders(model, rig, x):
     prims = render.primitives_from_model(model, x)
     return [
-        render.render_view(rig.K[v], rig.dist[v], rig.R[v], rig.t[v], (W, H), prims)
+        render.render_view(rig.K[v], rig.dist[v], rig.R[v], rig.t[v], tuple(rig.image_size[v]), prims)
         for v in range(rig.num_views)
     ]
 
@@ -101,6 +104,14 @@ def _energy(model, rig, x, obs, cue, surface_points=300, ref=None):
 # Silhouettes
 
 
+def _pixel_cover(cover, prims, rig, v, uv, *args):
+    """``cover(prims, R, t, x, y, *args)`` of view ``v`` at the pixels ``uv (M, 2)``, undistorted by OpenCV into
+    the normalised coordinates ``x, y`` (float32)."""
+    xy = cv2.undistortPoints(uv[:, None, :], np.asarray(rig.K[v]), np.asarray(rig.dist[v]))[:, 0]
+    f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
+    return np.asarray(cover(prims, f32(rig.R[v]), f32(rig.t[v]), f32(xy[:, 0]), f32(xy[:, 1]), *args))
+
+
 def test_silhouette_cover_matches_ray_casting(scene):
     """The analytic projected-silhouette test of the divergence cue against the ray caster's mask, pixel by pixel,
     with lens distortion (pixels undistorted as the cue's prepare step does): they differ only on the boundary."""
@@ -111,16 +122,7 @@ def test_silhouette_cover_matches_ray_casting(scene):
     uv = np.stack(np.meshgrid(np.arange(W), np.arange(H)), -1).reshape(-1, 2).astype(np.float64)
     for v, r in enumerate(_renders(model, rig, x)):
         mask = np.asarray(r.label).reshape(-1) >= 0
-        xy = cv2.undistortPoints(uv[:, None, :], np.asarray(rig.K[v]), np.asarray(rig.dist[v]))[:, 0]
-        cov = np.asarray(
-            cues._silhouette_cover(
-                prims,
-                jnp.asarray(rig.R[v], jnp.float32),
-                jnp.asarray(rig.t[v], jnp.float32),
-                jnp.asarray(xy[:, 0], jnp.float32),
-                jnp.asarray(xy[:, 1], jnp.float32),
-            )
-        )
+        cov = _pixel_cover(cues._silhouette_cover, prims, rig, v, uv)
         boundary = (
             cv2.morphologyEx(
                 mask.reshape(H, W).astype(np.uint8), cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8)
@@ -474,20 +476,23 @@ def test_interpenetration_closed_form(scene):
 # Gradients
 
 
+#: every cue in its differentiable configuration but the soft divergence, whose unrolled loop over the pieces of
+#: every primitive at each sample would double the compilation of the Jacobian below: its derivative is checked in
+#: the primitives it reads (test_smooth_cues.py)
 DIFFERENTIABLE_CONFIGS = [
     (n, {"bilinear": True, "soft": True} if d == "soft" else {"bilinear": True} if d == "bilinear" else {})
     for n, d in cues.DIFFERENTIABLE.items()
-    if d != "no"
+    if d != "no" and n != "silhouette_divergence"
 ]
 
 
 def test_differentiability_table_is_complete():
+    """Every cue has a differentiable configuration; the three whose default reads are thresholds or inside tests
+    (Li & Kulić's depth and edge fraction, López Méndez's divergence) have it with ``soft=True``."""
     assert set(cues.DIFFERENTIABLE) == set(cues.CUES)
-    assert {n for n, d in cues.DIFFERENTIABLE.items() if d == "no"} == {
-        "edge_fraction",
-        "depth",
-        "silhouette_divergence",
-    }
+    assert set(cues.DIFFERENTIABLE.values()) <= {"yes", "bilinear", "soft"}
+    for name in ("edge_fraction", "depth", "silhouette_divergence", "colour_histogram"):
+        assert cues.DIFFERENTIABLE[name] == "soft", name
 
 
 #: parameters that make a cue active (non-zero, with a non-zero gradient) at the test pose, so the check can fail

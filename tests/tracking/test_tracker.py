@@ -467,3 +467,28 @@ def test_tracker_gradient_is_that_of_its_batch_likelihood(sequence):
     assert np.all(np.isfinite(v_ref)) and np.any(np.asarray(g_ref) != 0)
     np.testing.assert_allclose(v, v_ref, rtol=1e-5)
     np.testing.assert_allclose(g, g_ref, rtol=1e-3, atol=1e-3 * float(np.max(np.abs(g_ref))))
+
+
+def test_gradient_filters_take_the_default_cues_with_depth(sequence):
+    """A full-body sequence with depth maps: its default cues include Li & Kulić's ``depth``, which ``--filter
+    hybrid`` takes without a message (its smooth variant: bilinear reads, ``soft=True``), as it takes every cue
+    with a differentiable configuration; the value and gradient of the tracker's likelihood around the first frame's
+    pose are finite and the gradient is not zero."""
+    from jaxmocap.likelihood.cues import DIFFERENTIABLE
+    from jaxmocap.tracking.setup import TrackSetup
+
+    src = SequenceSource(sequence)
+    opts = TrackOptions(filter="hybrid", model="full25", init="groundtruth", frames="0:2")
+    setup = TrackSetup(src, opts)
+    names = [n for n, _ in setup.cues]
+    assert src.has_depth and names == [n for n, _ in default_cues("full25", True, src.has_keypoints)]
+    assert "depth" in names and not any("differentiable" in n for n in setup.notes)
+    depth = next(c for c in setup.likelihood.cues if c.name == "depth")
+    assert DIFFERENTIABLE["depth"] == "soft" and depth.param_dict == {"bilinear": True, "soft": True}
+    tobs, masks, fd, _ = setup.observe(setup.frames[0])
+    x0, _, _ = setup.initial_state(setup.frames[0], masks, fd)
+    noise = np.random.default_rng(0).normal(size=(4, setup.model.num_dofs)) * np.asarray(setup.std)
+    X = jnp.asarray(np.asarray(x0) + noise, jnp.float32)
+    v, g = jax.jit(lambda X: setup.loglik.batch_value_and_grad(X, tobs, setup.layers - 1))(X)
+    assert np.all(np.isfinite(np.asarray(v))) and np.all(np.isfinite(np.asarray(g)))
+    assert np.all(np.abs(np.asarray(g)).max(-1) > 0)
