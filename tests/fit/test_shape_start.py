@@ -96,11 +96,11 @@ def scene():
 @pytest.fixture(scope="module")
 def fitted(scene):
     true, model, rig, obs, kp = scene
-    return shape_start.calibrate_from_start(obs, rig, kp, steps=300)
+    return shape_start.calibrate_from_start(obs, rig, kp, steps=150)
 
 
 def test_recovers_lengths_and_radii_from_unknown_poses(scene, fitted):
-    """Measured (4 poses, 3 views at 240×180, 1 px detection noise, 300 steps): every radius within 4.1 % of the
+    """Measured (4 poses, 3 views at 240×180, 1 px detection noise, 150 steps): every radius within 4.1 % of the
     truth, from 9–11 % at the start; every length within 1.1 % (their start, the triangulated noisy detections,
     within 1.1 % as well). A pixel is about 1.4 cm at the subject, so 6 % of a 3–5 cm radius is 0.1–0.2 px.
     Bounds: every radius within 6 % and nearer the truth than its start, the radii's mean error at most a third of
