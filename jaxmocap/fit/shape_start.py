@@ -275,15 +275,16 @@ def calibrate_from_start(
 
     Args:
       observations: the frames' :class:`~jaxmocap.features.observation.Observation` stacked along a leading axis
-        ``T`` (one pytree), in the pixels of ``rig``: ``foreground (T, V, H, W)`` and ``edge_dt (T, V, H, W)``
-        (``jaxmocap track``'s features: plate or background subtraction, the edge distance transform) and
-        ``keypoints2d (T, V, K, 3)`` (the detections in these pixels).
+        ``T`` (one pytree), in the pixels of ``rig``: ``foreground (T, V, H, W)`` (``jaxmocap track``'s features:
+        plate or background subtraction), ``keypoints2d (T, V, 15, 3)`` (the detections as evaluation joints in
+        these pixels) and, with ``edge_weight > 0``, ``edge_dt (T, V, H, W)`` (the edge distance transform).
       rig: the cameras of the feature maps.
       keypoints: ``(T, V, 15, 3)`` the detections as evaluation joints (u, v, confidence) in the pixels of
         ``keypoint_rig`` (default ``rig``): triangulated for the starting lengths and fitted for the poses.
       preset: the body preset (a model with the evaluation joints, e.g. ``full25``); init: starting dimensions
         (default the preset's), overridden by the measured lengths when ``measure``.
-      names: the dimensions to fit (default :data:`jaxmocap.fit.shape.LENGTHS` + :data:`~jaxmocap.fit.shape.RADII`).
+      names: the dimensions to fit (default :data:`jaxmocap.fit.shape.LENGTHS` + :data:`~jaxmocap.fit.shape.RADII`;
+        names the preset's dimensions lack are dropped).
       steps, learning_rate: Adam on the log-ratios of the dimensions and the scaled poses
         (:func:`jaxmocap.fit.shape.calibrate`).
       silhouette_weight, keypoint_weight, edge_weight: ``κ``, ``w_k``, ``w_e``; sigma_px: the keypoint cue's σ.
@@ -293,8 +294,9 @@ def calibrate_from_start(
       :class:`StartFit`.
 
     Raises:
-      ValueError: fewer than :data:`MIN_FRAMES` frames, shapes that disagree, no foreground or edge maps, or
-        fewer than :data:`MIN_FRAMES` frames whose detections give a pose.
+      ValueError: fewer than :data:`MIN_FRAMES` frames, shapes that disagree, no foreground (or edge) maps or
+        detections in them, no detection at all, or fewer than :data:`MIN_FRAMES` frames whose detections give a
+        pose.
     """
     from jaxmocap.io.subject import body_dimensions
     from jaxmocap.tracking.init import KEYPOINT_OF, keypoint_pose
@@ -313,6 +315,10 @@ def calibrate_from_start(
         if a is None or np.ndim(a) != 4 or a.shape[:2] != (T, rig.num_views):
             got = None if a is None else tuple(a.shape)
             raise ValueError(f"observations.{field} must be (T={T}, V={rig.num_views}, H, W), got {got}")
+    k2 = getattr(observations, "keypoints2d", None)
+    if k2 is None or np.ndim(k2) != 4 or k2.shape[:3] != (T, rig.num_views, len(body.EVAL_JOINTS)):
+        got = None if k2 is None else tuple(k2.shape)
+        raise ValueError(f"observations.keypoints2d must be (T={T}, V={rig.num_views}, 15, 3), got {got}")
     if not np.any(kp[..., 2] > 0):
         raise ValueError("no detections in the calibration frames: the poses cannot be initialised")
     dims0 = dict(body.DEFAULT_DIMENSIONS if init is None else {**body.DEFAULT_DIMENSIONS, **init})

@@ -142,6 +142,8 @@ def test_bad_input(scene):
         shape_start.calibrate_from_start(obs, rig, kp[:, :2])
     with pytest.raises(ValueError, match="observations.foreground"):
         shape_start.calibrate_from_start(obs._replace(foreground=None), rig, kp)
+    with pytest.raises(ValueError, match="observations.keypoints2d"):
+        shape_start.calibrate_from_start(obs._replace(keypoints2d=None), rig, kp)
     with pytest.raises(ValueError, match="observations.edge_dt"):
         shape_start.calibrate_from_start(obs._replace(edge_dt=None), rig, kp, edge_weight=1.0)
     few = kp.copy()
