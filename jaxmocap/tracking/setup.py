@@ -290,13 +290,24 @@ class TrackSetup:
         self.notes.append(f"body dimensions measured from the triangulated detections (m): {shown}")
         return dims
 
-    #: frames (the first of the run) that ``body = "calibrate"`` fits the dimensions to
+    #: frames (the first of the run) that ``body = "calibrate"`` fits the dimensions to, and the lengths it fits
+    #: (with every radius)
     CALIBRATION_FRAMES = 10
+    CALIBRATED = (
+        "shoulder_width",
+        "hip_width",
+        "upper_arm_length",
+        "forearm_length",
+        "thigh_length",
+        "shin_length",
+    )
 
     def _calibrated_model(self):
         """``body = "calibrate"``: the preset with the dimensions fitted to the first :data:`CALIBRATION_FRAMES`
         readable frames of the run (:func:`jaxmocap.fit.shape_start.calibrate_from_start` on this run's
-        foreground and the input's detections, starting from the lengths measured from the detections)."""
+        foreground and the input's detections), starting from the dimensions measured from the detections
+        (:func:`jaxmocap.io.subject.body_dimensions`, as ``body = "detections"``); the :data:`CALIBRATED` lengths
+        and the radii are fitted, the torso column (torso length, drops, neck) kept as measured."""
         from jaxmocap.fit.shape_start import calibrate_from_start
 
         src, fb = self.source, self.features
@@ -320,8 +331,21 @@ class TrackSetup:
         if not obs:
             raise ValueError("--body calibrate: no readable frame in the run")
         stacked = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *obs)
+        from jaxmocap.fit.shape import RADII
+        from jaxmocap.io.subject import body_dimensions
+
+        # the detections' convention for the torso (root = the middle of the detected hips, thorax = the detected
+        # neck: :func:`body_dimensions`), which the silhouettes do not decide; the limbs, widths and radii fitted
+        measured = body_dimensions(src.keypoints, src.rig)
         fit = calibrate_from_start(
-            stacked, fb.rig, np.asarray(src.keypoints)[kept], keypoint_rig=src.rig, preset=self.model.name
+            stacked,
+            fb.rig,
+            np.asarray(src.keypoints)[kept],
+            keypoint_rig=src.rig,
+            preset=self.model.name,
+            init=measured if len(measured) >= 6 else None,
+            measure=False,
+            names=self.CALIBRATED + RADII,
         )
         self.body_dimensions = fit.dims
         self.notes.append(
