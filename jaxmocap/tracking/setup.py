@@ -307,7 +307,9 @@ class TrackSetup:
         readable frames of the run (:func:`jaxmocap.fit.shape_start.calibrate_from_start` on this run's
         foreground and the input's detections), starting from the dimensions measured from the detections
         (:func:`jaxmocap.io.subject.body_dimensions`, as ``body = "detections"``); the :data:`CALIBRATED` lengths
-        and the radii are fitted, the torso column (torso length, drops, neck) kept as measured."""
+        and the radii are fitted, the torso column (torso length, drops, neck) kept as measured. The calibration
+        frames go through the run's feature builder, so an adaptive foreground (``mog2``, ``adaptive``) has seen
+        them once more before the run starts."""
         from jaxmocap.fit.shape_start import calibrate_from_start
 
         src, fb = self.source, self.features
