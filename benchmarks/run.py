@@ -389,6 +389,13 @@ SCRIPTS: dict[str, Script] = {
         writes=("pose2sim.md", "pose2sim_overlay.png"),
         env="JAX_PLATFORMS=cpu",
     ),
+    "shape_calibration": Script(
+        "Body-shape calibration (lengths and radii) from the first frames, poses unknown: synthetic and Pose2Sim",
+        "experiments/shape_calibration.py",
+        "--rigs ring4 stereo --work /tmp/shape_calibration",
+        writes=("shape_calibration.md",),
+        env="JAX_PLATFORMS=cpu",
+    ),
     "pose2sim_loo": Script(
         "Pose2Sim demo recording, leave one camera out: tracked from three, against their triangulation",
         "experiments/pose2sim_track.py",

@@ -19,7 +19,9 @@ initialisation from the ground truth) only where asked for. Both track the body 
 from __future__ import annotations
 
 import dataclasses
+import os
 import pathlib
+import shutil
 import time
 
 import numpy as np
@@ -27,6 +29,7 @@ from common import ROOT
 
 from jaxmocap.features.observation import make_observation
 from jaxmocap.geometry import body, camera
+from jaxmocap.io import calibration
 from jaxmocap.io.sources import FrameData, SequenceSource
 from jaxmocap.likelihood import compose as L
 from jaxmocap.synth import generate as synth
@@ -282,3 +285,36 @@ class PingPong:
 
     def close(self) -> None:
         self.s.close()
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# The Pose2Sim demo recording (``experiments/pose2sim_track.py``, ``experiments/shape_calibration.py``)
+
+P2S_DATA = pathlib.Path(os.environ.get("JAXMOCAP_DATA", "/work/shared/data")) / "video" / "pose2sim_demo"
+P2S_DERIVED = "derived_by_pose2sim_a948c20"
+P2S_TRC = f"{P2S_DERIVED}/pose-3d/S00_P00_T01_BalancingTrial_0-100.trc"
+P2S_CALIB = "calibration/Calib_qualisys_converted_by_pose2sim_a948c20.toml"
+P2S_CAMS = [f"cam0{c}" for c in range(1, 5)]
+
+
+def pose2sim_project(dest: pathlib.Path, cams, pose: bool = True) -> pathlib.Path:
+    """A Pose2Sim project folder at ``dest`` of links to the recording, with the cameras ``cams`` (indices); without
+    ``pose`` no ``pose/`` folder (the tracker's built-in detector makes the keypoints)."""
+    if dest.exists():
+        shutil.rmtree(dest)
+    for sub in ("videos", "pose", "calibration/extrinsics"):
+        (dest / sub).mkdir(parents=True)
+    (dest / "Config.toml").symlink_to(P2S_DATA / "Config.toml")
+    rig = calibration.load_calibration(P2S_DATA / P2S_CALIB)
+    if list(cams) == list(range(rig.num_views)):
+        (dest / "calibration" / "Calib.toml").symlink_to(P2S_DATA / P2S_CALIB)
+    else:
+        calibration.save_calibration(dest / "calibration" / "Calib.toml", camera.select(rig, list(cams)))
+    for c in cams:
+        name = P2S_CAMS[c]
+        (dest / "videos" / f"{name}.mp4").symlink_to(P2S_DATA / "videos" / f"{name}.mp4")
+        if pose:
+            (dest / "pose" / f"{name}_json").symlink_to(P2S_DATA / P2S_DERIVED / "pose" / f"{name}_json")
+        ext = P2S_DATA / "calibration" / "extrinsics" / f"{name}_ext.png"
+        (dest / "calibration" / "extrinsics" / ext.name).symlink_to(ext)
+    return dest

@@ -517,8 +517,9 @@ def _add_tracking_commands(sub) -> None:
     )
     tr.add_argument(
         "--body",
-        help="body file (TOML) with the subject's dimensions, or 'detections' (measured from the 2D keypoints; "
-        "the default for an input with keypoints and no body file)",
+        help="body file (TOML) with the subject's dimensions, 'detections' (measured from the 2D keypoints; "
+        "the default for an input with keypoints and no body file), or 'calibrate' (lengths and radii fitted to "
+        "the first 10 frames' silhouettes and keypoints)",
     )
     tr.add_argument(
         "--foreground",

@@ -42,6 +42,11 @@ import common
 import cv2
 import jax.numpy as jnp
 import numpy as np
+from scenes import P2S_CALIB as CALIB
+from scenes import P2S_DATA as DATA
+from scenes import P2S_DERIVED as DERIVED
+from scenes import P2S_TRC as TRC
+from scenes import pose2sim_project as make_project
 
 import jaxmocap
 from jaxmocap.geometry import camera
@@ -50,13 +55,8 @@ from jaxmocap.io import calibration
 from jaxmocap.io.keypoints import KEYPOINT_INDEX
 from jaxmocap.io.pose2sim import JOINT_OF_TRC, Pose2SimSource, open_project, reference_joints
 
-DATA = pathlib.Path(os.environ.get("JAXMOCAP_DATA", "/work/shared/data")) / "video" / "pose2sim_demo"
-DERIVED = "derived_by_pose2sim_a948c20"
-TRC = f"{DERIVED}/pose-3d/S00_P00_T01_BalancingTrial_0-100.trc"
-CALIB = "calibration/Calib_qualisys_converted_by_pose2sim_a948c20.toml"
 #: the tracker's default cues for such a folder (the keypoints cue at its default weight, 32)
 CUES = "foreground,edge_distance,coverage:4,keypoints:32"
-CAMS = [f"cam0{c}" for c in range(1, 5)]
 
 
 def paths(root: pathlib.Path, images: bool = False) -> dict:
@@ -74,29 +74,6 @@ def paths(root: pathlib.Path, images: bool = False) -> dict:
     else:
         out["videos"] = [root / "videos" / f"{c}.mp4" for c in cams]
     return out
-
-
-def make_project(dest: pathlib.Path, cams, pose: bool = True) -> pathlib.Path:
-    """A Pose2Sim project folder at ``dest`` of links to the recording, with the cameras ``cams`` (indices); without
-    ``pose`` no ``pose/`` folder (the tracker's built-in detector makes the keypoints)."""
-    if dest.exists():
-        shutil.rmtree(dest)
-    for sub in ("videos", "pose", "calibration/extrinsics"):
-        (dest / sub).mkdir(parents=True)
-    (dest / "Config.toml").symlink_to(DATA / "Config.toml")
-    rig = calibration.load_calibration(DATA / CALIB)
-    if list(cams) == list(range(rig.num_views)):
-        (dest / "calibration" / "Calib.toml").symlink_to(DATA / CALIB)
-    else:
-        calibration.save_calibration(dest / "calibration" / "Calib.toml", camera.select(rig, list(cams)))
-    for c in cams:
-        name = CAMS[c]
-        (dest / "videos" / f"{name}.mp4").symlink_to(DATA / "videos" / f"{name}.mp4")
-        if pose:
-            (dest / "pose" / f"{name}_json").symlink_to(DATA / DERIVED / "pose" / f"{name}_json")
-        ext = DATA / "calibration" / "extrinsics" / f"{name}_ext.png"
-        (dest / "calibration" / "extrinsics" / ext.name).symlink_to(ext)
-    return dest
 
 
 def neighbouring_pair(rig: camera.Rig, centre: np.ndarray) -> tuple[int, int]:

@@ -173,6 +173,7 @@ def calibrate(
     coverage: Coverage | None = None,
     layer=0,
     builder: Callable | None = None,
+    penalty: tuple[Callable, object] | None = None,
 ) -> ShapeFit:
     """Fit body dimensions (and poses) to ``T`` frames by gradient ascent on the log-likelihood.
 
@@ -189,6 +190,9 @@ def calibrate(
         :func:`coverage_energy`); it counters the shrinking that the ``foreground`` cue alone favours.
       layer: annealing layer of the likelihood to use.
       builder: ``dims -> BodyModel`` (default: the preset of ``lik.model``).
+      penalty: an optional ``(fn, data)``: ``fn(L, X, data)`` (a scalar, ``L`` the likelihood with the current
+        dimensions, ``X (T, D)`` the current poses, ``data`` a pytree of arrays passed to the compiled loop as an
+        argument) is subtracted from the objective (e.g. :func:`jaxmocap.fit.shape_start.silhouette_distance`).
 
     Returns:
       :class:`ShapeFit` (host arrays and floats).
@@ -211,7 +215,9 @@ def calibrate(
     layout = flesh.surface_layout(lik.model, total=int(lik.surface.local.shape[0]))
     lower, upper = lik.model.lower, lik.model.upper
 
-    def objective(params, observations):
+    pen_fn, pen_data = penalty if penalty is not None else (None, None)
+
+    def objective(params, observations, pen_data):
         u, v = params
         X = X0 + scale_x * v if fit_pose else X0
         L = likelihood_with_dimensions(lik, _dims_of(u, names, start, base), builder, layout)
@@ -222,16 +228,18 @@ def calibrate(
                 lambda x, p, w: coverage_energy(L.model, L.surface, L.rig, x, p, w, coverage.sigma_px)
             )(X, jnp.asarray(coverage.pixels, dtype), jnp.asarray(coverage.weights, dtype))
             out = out - coverage.weight * jnp.mean(e)
+        if pen_fn is not None:
+            out = out - pen_fn(L, X, pen_data)
         return out
 
     opt = optax.adam(learning_rate)
     params = (jnp.zeros(len(names), dtype), jnp.zeros_like(X0))
 
     @jax.jit
-    def run(params, observations):
+    def run(params, observations, pen_data):
         def body_fn(carry, _):
             params, state = carry
-            value, grads = jax.value_and_grad(objective)(params, observations)
+            value, grads = jax.value_and_grad(objective)(params, observations, pen_data)
             grads = jax.tree_util.tree_map(lambda g: jnp.where(jnp.isfinite(g), -g, 0.0), grads)
             updates, state = opt.update(grads, state, params)
             u, v = optax.apply_updates(params, updates)
@@ -240,9 +248,9 @@ def calibrate(
             return ((u, v), state), value
 
         (params, _), values = jax.lax.scan(body_fn, (params, opt.init(params)), None, length=steps)
-        return params, jnp.append(values, objective(params, observations))
+        return params, jnp.append(values, objective(params, observations, pen_data))
 
-    (u, v), values = run(params, observations)
+    (u, v), values = run(params, observations, pen_data)
     dims = {k: float(x) for k, x in _dims_of(u, names, start, base).items()}
     X = X0 + scale_x * v if fit_pose else X0
     return ShapeFit(dims, np.asarray(X), np.asarray(values))

@@ -203,7 +203,8 @@ class TrackOptions:
     """Options of a tracking run (``None`` = the per-model / per-input default).
 
     ``model``/``body``: :func:`build_model` (``body``: a body file, or ``"detections"``: the dimensions measured
-    from the input's 2D detections, :func:`jaxmocap.io.subject.body_dimensions`; None: the sequence's body file,
+    from the input's 2D detections, :func:`jaxmocap.io.subject.body_dimensions`; ``"calibrate"``: limb lengths and radii
+    fitted to the run's first 10 frames, :func:`jaxmocap.fit.shape_start.calibrate_from_start`; None: the sequence's body file,
     else the detections' dimensions when the input has detections, else the preset's); ``filter``, ``particles``, ``layers``: :func:`make_filter` (defaults
     :func:`default_particles`, :func:`default_layers`); ``cues``: :func:`parse_cues` (default :func:`default_cues`);
     ``seed``: frame ``t`` uses the key ``fold_in(key(seed), t)``; ``frames``: ``"A:B"``; ``init``: ``groundtruth``,

@@ -182,7 +182,7 @@ class TrackSetup:
         self.notes = list(getattr(source, "notes", []))
         self.preset = presets.get(o.preset) if o.preset is not None else None
         self.body_dimensions = self._measured_body()
-        body = None if o.body == "detections" else o.body
+        body = None if o.body in ("detections", "calibrate") else o.body
         # dimensions measured from the detections replace the input's own body file (``body = "detections"``)
         fallback = None if self.body_dimensions else source.body_path
         check_export_options(o.smooth, o.bvh_units, source.fps)
@@ -240,6 +240,8 @@ class TrackSetup:
         n = o.particles if o.particles is not None else default_particles(self.model.name, o.filter)
         counts = partition_counts(self.model, o.filter, n, self.groups)  # raises on a bad count
         self.num_particles = list(counts) if isinstance(n, (list, tuple)) else int(n)
+        if o.body == "calibrate":
+            self.model = self._calibrated_model()
         self.std = diffusion_std(self.model, source.fps) * float(o.diffusion_scale)
         self.likelihood = self._build_likelihood()
         self.refine, prior = default_refine(source.rig.num_views, source.has_keypoints)
@@ -310,6 +312,72 @@ class TrackSetup:
         )
         self.notes.append(f"body dimensions measured from the triangulated detections (m): {shown}")
         return dims
+
+    #: frames (the first of the run) that ``body = "calibrate"`` fits the dimensions to, and the lengths it fits
+    #: (with every radius)
+    CALIBRATION_FRAMES = 10
+    CALIBRATED = (
+        "shoulder_width",
+        "hip_width",
+        "upper_arm_length",
+        "forearm_length",
+        "thigh_length",
+        "shin_length",
+    )
+
+    def _calibrated_model(self):
+        """``body = "calibrate"``: the preset with the dimensions fitted to the first :data:`CALIBRATION_FRAMES`
+        readable frames of the run (:func:`jaxmocap.fit.shape_start.calibrate_from_start` on this run's
+        foreground and the input's detections), starting from the dimensions measured from the detections
+        (:func:`jaxmocap.io.subject.body_dimensions`, as ``body = "detections"``); the :data:`CALIBRATED` lengths
+        and the radii are fitted, the torso column (torso length, drops, neck) kept as measured. The calibration
+        frames go through the run's feature builder, so an adaptive foreground (``mog2``, ``adaptive``) has seen
+        them once more before the run starts."""
+        from jaxmocap.fit.shape_start import calibrate_from_start
+
+        src, fb = self.source, self.features
+        if not src.has_keypoints:
+            raise ValueError("--body calibrate needs 2D keypoints (--keypoints)")
+        if self.o.model in ("parsec31",):
+            raise ValueError("--body calibrate fits the full25/upper presets' dimensions, not parsec31's")
+        obs, kept = [], []
+        for t in self.frames:
+            if len(obs) == self.CALIBRATION_FRAMES:
+                break
+            try:
+                fd = src.read(t, masks=fb.needs_masks, depth=False)
+            except BadFrame:
+                continue
+            tobs, _ = fb(fd, self.model.num_dofs)
+            if not tobs.image.has("foreground"):
+                raise ValueError("--body calibrate needs a foreground (the foreground or coverage cue)")
+            obs.append(tobs.image)
+            kept.append(t)
+        if not obs:
+            raise ValueError("--body calibrate: no readable frame in the run")
+        stacked = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *obs)
+        from jaxmocap.fit.shape import RADII
+        from jaxmocap.io.subject import body_dimensions
+
+        # the detections' convention for the torso (root = the middle of the detected hips, thorax = the detected
+        # neck: :func:`body_dimensions`), which the silhouettes do not decide; the limbs, widths and radii fitted
+        measured = body_dimensions(src.keypoints, src.rig)
+        fit = calibrate_from_start(
+            stacked,
+            fb.rig,
+            np.asarray(src.keypoints)[kept],
+            keypoint_rig=src.rig,
+            preset=self.model.name,
+            init=measured if len(measured) >= 6 else None,
+            measure=False,
+            names=self.CALIBRATED + RADII,
+        )
+        self.body_dimensions = fit.dims
+        self.notes.append(
+            f"body dimensions calibrated on frames {kept[0]}–{kept[-1]} ({len(fit.frames)} with a pose from the "
+            "detections): " + ", ".join(f"{k} {v:.3f}" for k, v in fit.dims.items() if k in fit.start_dims)
+        )
+        return build_model(self.o.model, None, None, fit.dims)
 
     @property
     def velocity(self) -> float:

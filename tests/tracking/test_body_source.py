@@ -1,5 +1,6 @@
 """Which body dimensions a run tracks with: ``--body detections`` measures the subject from the input's 2D
-detections even where the input carries a body file of its own; without it, the body file is kept."""
+detections even where the input carries a body file of its own; without it, the body file is kept;
+``--body calibrate`` fits the lengths and radii to the run's first frames."""
 
 import numpy as np
 import pytest
@@ -25,7 +26,7 @@ class _WithDetections(SequenceSource):
 def source(tmp_path_factory):
     out = tmp_path_factory.mktemp("seq")
     synth.synthesize(
-        "demo", out, rig="ring4", frames="0:24", fps=10.0, size="160x120", seed=0, overwrite=True
+        "demo", out, rig="ring4", frames="0:48", fps=10.0, size="160x120", seed=0, overwrite=True
     )
     return _WithDetections(out)
 
@@ -47,3 +48,39 @@ def test_detections_replace_the_body_file_and_the_file_is_kept_otherwise(source)
         _lengths(measured.model), _lengths(build_model("upper9", None, None, measured.body_dimensions))
     )
     assert not np.allclose(_lengths(measured.model), _lengths(from_file))
+
+
+def test_track_runs_with_a_calibrated_body(source, tmp_path):
+    """``body="calibrate"``: a whole run (``jaxmocap track``'s :class:`~jaxmocap.tracking.tracker.Tracker`) with the
+    preset's lengths and radii fitted to the run's first frames
+    (:func:`jaxmocap.fit.shape_start.calibrate_from_start`): the model is the preset built with those dimensions,
+    recorded in ``run.json``, with radii moved from the preset's, and every frame is tracked."""
+    import json
+
+    from jaxmocap.geometry import body
+    from jaxmocap.tracking.tracker import Tracker
+
+    opts = TrackOptions(body="calibrate", frames="0:4", particles=40, layers=2, smooth="none")
+    run = Tracker(source, tmp_path, opts, quiet=True)
+    setup = run.setup
+    dims = setup.body_dimensions
+    assert dims and any("calibrated on frames 0–3" in n for n in setup.notes)
+    np.testing.assert_allclose(
+        _lengths(setup.model), _lengths(build_model("full25", None, None, dims)), rtol=1e-6
+    )
+    moved = [
+        k
+        for k in ("thigh_radius_top", "torso_radius_top")
+        if abs(dims[k] - body.DEFAULT_DIMENSIONS[k]) > 1e-4
+    ]
+    assert moved, dims
+    run.run()
+    record = json.loads((tmp_path / "run.json").read_text())
+    assert record["status"] == "complete" and record["frames"] == [0, 4]
+    assert record["body_dimensions"]["thigh_radius_top"] == pytest.approx(dims["thigh_radius_top"])
+    states = np.load(tmp_path / "poses.npz")["state"]
+    assert states.shape[0] == 4 and np.all(np.isfinite(states))
+    with pytest.raises(ValueError, match="needs 2D keypoints"):
+        TrackSetup(
+            SequenceSource(source.root, detections=False), TrackOptions(body="calibrate", frames="0:4")
+        )
