@@ -77,7 +77,12 @@ def run(args) -> int:
         "jaxmocap demo: CMU 02_01 (walk), synthetic stereo, " + f"{seq.num_frames} frames at {args.size}",
         f"model {summary['model']}, filter {summary['filter']}, {particles_text(summary['particles'])} particles x "
         f"{summary['layers']} layers, cues {cues}",
-        "input as recorded: images, plates, simulated detections (no masks, no ground truth); start by IK",
+        "input as recorded: images, plates, simulated detections (no masks, no ground truth); start by IK; "
+        + (
+            f"estimate refined on the detections ({summary['refine']}, prior {summary['refine_prior']:g})"
+            if summary.get("refine", "none") != "none"
+            else "estimate not refined"
+        ),
         f"tracking {t2 - t1:.1f} s ({summary['frames_per_s']:.2f} frames/s after the first frame), total {total:.1f} s",
         "",
     ]

@@ -629,6 +629,8 @@ class TrackingLoop:
             "particles": setup.num_particles,
             "layers": setup.layers,
             "cues": [list(c) for c in setup.cues],
+            "refine": getattr(setup, "refine", "none"),
+            "refine_prior": getattr(setup, "refine_prior", None),
         }
         pose_writer.flush()
         groundtruth = getattr(self.source, "groundtruth", None)

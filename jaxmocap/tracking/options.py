@@ -163,7 +163,7 @@ def default_refine(num_views: int, has_keypoints: bool) -> tuple[str, float]:
 
 #: Prior weight λ of the refinement with three or more views, and with two (:func:`default_refine`).
 REFINE_PRIOR_VIEWS = 1.0
-REFINE_PRIOR_PAIR = 100.0
+REFINE_PRIOR_PAIR = 30.0
 
 
 def cues_text(cues) -> str:

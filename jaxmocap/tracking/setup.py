@@ -11,7 +11,8 @@ initial pose is known, the filter (:func:`jaxmocap.filters.factory.make_filter`)
 The frame loop (:mod:`jaxmocap.tracking.loop`) reads these hooks of a setup: ``observe(t)``,
 ``initial_state(t, masks, fd)``, ``set_references(x0, obs)``, ``make_filter(x0)``, ``start(filter, key, x0,
 spread, obs)``, ``detection(fd, masks, last_good)``, ``reinit_mean(fd, masks, last_good)``, ``output_state(x)``,
-``joints(x)``, optionally ``estimate_joints(est)`` (traced into the step), ``description()`` and the flags
+``joints(x)``, optionally ``estimate_joints(est)`` and ``refine_step(state, info, tobs)`` (traced into the step:
+:mod:`jaxmocap.tracking.refine`), ``description()`` and the flags
 ``track_loss`` / ``resumable`` / ``velocity``.
 """
 
@@ -609,6 +610,8 @@ class TrackSetup:
             "model": self.model.name,
             "dof_names": list(self.model.dof_names),
             "cues": [list(c) for c in self.cues],
+            "refine": self.refine,
+            "refine_prior": self.refine_prior,
             "particles": self.num_particles,
             "layers": self.layers,
             "frames": [self.frames[0], self.frames[-1] + 1],

@@ -79,6 +79,7 @@ IROS2007 = Preset(
         dynamics_fraction=0.2,
         detection_fraction=0.8,
         velocity=0.0,
+        refine="none",  # the paper's system, without the refinement on detections
     ),
     cue_params={
         "edge_distance": {"sigma_px": PAPER_SIGMAS[0]},

@@ -76,6 +76,7 @@ LI_KULIC = Preset(
         layers=1,
         particles=[p.particles for p in _LI_KULIC_PARTITIONS],
         cues="depth,edge_fraction,colour_template,wristband,ground",
+        refine="none",  # the paper's filter, without the refinement on detections
     ),
     partitions=_LI_KULIC_PARTITIONS,
     schedule="li-kulic",

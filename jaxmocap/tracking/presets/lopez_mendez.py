@@ -94,7 +94,13 @@ LOPEZ_MENDEZ = Preset(
     name="lopez-mendez",
     model="upper9",
     options=dict(
-        model="upper9", filter="fbapf", particles=200, layers=3, cues=ALL_CUES, foreground="adaptive"
+        model="upper9",
+        filter="fbapf",
+        particles=200,
+        layers=3,
+        cues=ALL_CUES,
+        foreground="adaptive",
+        refine="none",  # the thesis's filters, without the refinement on detections
     ),
     filters={
         "apf": dict(cues=CLASSIC_CUES),
