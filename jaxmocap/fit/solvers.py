@@ -48,6 +48,9 @@ def least_squares(
       maxiter: number of iterations; tol: an iterate with ``‖Jᵀr‖₂ ≤ tol`` is kept from then on;
       damping: initial ``μ / max diag(JᵀJ)``.
 
+    A step whose iterate, cost or gradient norm is not finite is not taken: the solver stops at the last finite
+    iterate (an exact fit can reach a zero residual, where the gain ratio of Levenberg–Marquardt is 0/0).
+
     Returns:
       ``(x, SolveInfo)``; ``iterations`` counts the steps taken before the tolerance was met. The Jacobian is
       materialised and the normal equations solved by Cholesky (right for small dense problems such as pose
@@ -75,7 +78,10 @@ def least_squares(
     def step(_, carry):
         x, st = carry
         x_new, st_new = solver.update(x, st, *args)
-        done = st.error <= tol
+        # converged, or a step that left the finite numbers (an exact fit's 0/0 gain ratio, a damping grown past
+        # the float range): the last finite iterate is kept
+        bad = ~(jnp.all(jnp.isfinite(x_new)) & jnp.isfinite(st_new.value) & jnp.isfinite(st_new.error))
+        done = (st.error <= tol) | bad
         keep = lambda old, new: jnp.where(done, old, new).astype(old.dtype)
         return jax.tree.map(keep, (x, st), (x_new, st_new))
 
