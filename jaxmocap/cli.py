@@ -594,6 +594,14 @@ def _add_tracking_commands(sub) -> None:
         help="weight of the filter's estimate in the refinement (default 1; larger stays nearer the filter)",
     )
     tr.add_argument(
+        "--refine-depth",
+        type=float,
+        metavar="SIGMA_M",
+        help="standard deviation (m) of a depth term in the refinement: the camera depths of the trunk's and the "
+        "limbs' joints read from the input's depth maps (0 = none; default 0.05 with a stereo pair and depth maps, "
+        "else none: the best measured, see the README)",
+    )
+    tr.add_argument(
         "--proposal",
         choices=choices.PROPOSALS,
         help="detection-driven pose of icondensation / iapf and of re-initialisations: auto (keypoint IK, else "

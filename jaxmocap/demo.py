@@ -77,9 +77,11 @@ def run(args) -> int:
         "jaxmocap demo: CMU 02_01 (walk), synthetic stereo, " + f"{seq.num_frames} frames at {args.size}",
         f"model {summary['model']}, filter {summary['filter']}, {particles_text(summary['particles'])} particles x "
         f"{summary['layers']} layers, cues {cues}",
-        "input as recorded: images, plates, simulated detections (no masks, no ground truth); start by IK; "
+        "input as recorded: images, plates, depth maps, simulated detections (no masks, no ground truth); start by "
+        "IK; "
         + (
-            f"estimate refined on the detections ({summary['refine']}, prior {summary['refine_prior']:g})"
+            f"estimate refined on the detections ({summary['refine']}, prior {summary['refine_prior']:g}"
+            + (f", depth maps at σ_d {summary['refine_depth']:g} m)" if summary.get("refine_depth") else ")")
             if summary.get("refine", "none") != "none"
             else "estimate not refined"
         ),

@@ -434,10 +434,12 @@ def fit_pose_2d(
     prior_weight: float = 1.0,
     maxiter: int = 30,
     tol: float = 1e-2,
+    depth: jnp.ndarray | None = None,
+    depth_weights: jnp.ndarray | None = None,
 ) -> jnp.ndarray:
-    """Fit the state to 2D detections by their reprojection error:
+    """Fit the state to 2D detections by their reprojection error (and to measured depths of the joints):
 
-    ``x* = argmin_x Σ_v Σ_j w_vj ‖π_v(f_j(x)) − y_vj‖² + λ Σ_d (u_d − u0_d)²``
+    ``x* = argmin_x Σ_v Σ_j w_vj ‖π_v(f_j(x)) − y_vj‖² [+ Σ_v Σ_j ω_vj (z_v(f_j(x)) − d_vj)²] + λ Σ_d (u_d − u0_d)²``
 
     with ``π_v`` camera ``v``'s projection (:func:`jaxmocap.geometry.camera.project`, distortion included),
     ``f_j`` the model's joints, ``y_vj`` the detected pixel of joint ``j`` in view ``v`` and ``w_vj`` its weight
@@ -447,17 +449,24 @@ def fit_pose_2d(
     detection noise into its depth in proportion to distance / baseline (a stereo pair 0.3 m apart at 3.4 m:
     each pixel of disparity error moves a joint ≈ 0.13 m along the ray, and the triangulated fit of the demo
     walk's first frames was 0.4–0.8 m off on average); here the limb lengths of the model tie the joints together,
-    so the depth comes from the skeleton's projected size as well as from the disparities.
+    so the depth comes from the skeleton's projected size as well as from the disparities. With ``depth`` given,
+    ``z_v`` is a joint's camera-frame depth (``z_c`` of :func:`jaxmocap.geometry.camera.project_with_depth`),
+    ``d_vj`` its measured depth in view ``v`` (m, e.g. read from a depth map) and ``ω_vj`` that measurement's
+    weight (1/m²; 0 where none): the depths fix what the disparities of close views fix poorly.
 
     Args:
       model: the body model; rig: the cameras (:class:`jaxmocap.geometry.camera.Rig`, pixels of ``keypoints``).
       keypoints: ``(V, J, 2)`` pixels in ``model.joint_names`` order; weights: ``(V, J)``.
       init: ``(D,)`` start state. prior_weight: ``λ``; maxiter, tol: Levenberg–Marquardt's.
+      depth, depth_weights: ``(V, J)`` measured camera depths ``d`` and their weights ``ω`` (None: no depth term).
 
     Returns: ``(D,)`` the fitted state, inside the joint limits. Pure and jit-able; compiled once per model
     structure and shapes.
     """
     dtype = model.lower.dtype
+    if (depth is None) != (depth_weights is None):
+        raise ValueError("depth and depth_weights go together")
+    measured = None if depth is None else (jnp.asarray(depth, dtype), jnp.asarray(depth_weights, dtype))
     return _solve_2d(
         model,
         rig,
@@ -467,20 +476,45 @@ def fit_pose_2d(
         jnp.asarray(prior_weight, dtype),
         jnp.asarray(tol, dtype),
         maxiter,
+        measured,
     )
 
 
 @functools.partial(jax.jit, static_argnames=("maxiter",))
-def _solve_2d(model, rig, uv, weights, x0, prior_weight, tol, maxiter):
+def _solve_2d(model, rig, uv, weights, x0, prior_weight, tol, maxiter, measured=None):
+    """:func:`fit_pose_2d`; ``measured``: ``(depth, depth_weights)`` or None."""
     w = jnp.where(jnp.isfinite(uv).all(-1), jnp.maximum(weights, 0.0), 0.0)
     uv = jnp.where(jnp.isfinite(uv), uv, 0.0)
     u0 = from_state(model, clip_into(model, x0))
     prior_sqrt = jnp.full(u0.shape, jnp.sqrt(prior_weight))
-    u, _ = solvers.least_squares(
-        _residual_2d, u0, model, rig, uv, jnp.sqrt(w), prior_sqrt, u0,
-        jac_fn=_residual_2d_jac, maxiter=maxiter, tol=tol,
-    )  # fmt: skip
+    args = (model, rig, uv, jnp.sqrt(w), prior_sqrt, u0)
+    residual, jac = _residual_2d, _residual_2d_jac
+    if measured is not None:
+        z, wz = measured
+        wz = jnp.where(jnp.isfinite(z), jnp.maximum(wz, 0.0), 0.0)
+        args += (jnp.where(jnp.isfinite(z), z, 0.0), jnp.sqrt(wz))
+        residual, jac = _residual_2d_depth, _residual_2d_depth_jac
+    u, _ = solvers.least_squares(residual, u0, *args, jac_fn=jac, maxiter=maxiter, tol=tol)
     return clip_into(model, to_state(model, u))
+
+
+def _residual_2d_depth(u, model, rig, uv, w_sqrt, prior_sqrt, u0, z, wz_sqrt):
+    """:func:`_residual_2d` and the weighted camera depths' misfits ``√ω_vj (z_v(f_j(x)) − d_vj)`` (m)."""
+    X, _ = joints_and_jacobian(model, to_state(model, u))
+    _, zc = camera.project_with_depth(rig, X)  # (V, J)
+    rz = wz_sqrt * (zc - z)
+    return jnp.concatenate([_residual_2d(u, model, rig, uv, w_sqrt, prior_sqrt, u0), rz.ravel()])
+
+
+def _residual_2d_depth_jac(u, model, rig, uv, w_sqrt, prior_sqrt, u0, z, wz_sqrt):
+    """Rows of :func:`_residual_2d_jac`, then the depths': ``∂z_v/∂X`` is camera ``v``'s third rotation row."""
+    bounded, c, h = _bounds(model)
+    x = to_state(model, u)
+    _, J = joints_and_jacobian(model, x)
+    Ju = J * jnp.where(bounded, h * jnp.cos(u), 1.0)  # (J, 3, D)
+    Jz = jnp.einsum("vb,jbd->vjd", rig.R[:, 2, :].astype(Ju.dtype), Ju) * wz_sqrt[..., None]  # (V, J, D)
+    top = _residual_2d_jac(u, model, rig, uv, w_sqrt, prior_sqrt, u0)
+    return jnp.concatenate([top, Jz.reshape(-1, u.shape[0])])
 
 
 @functools.partial(jax.jit, static_argnames=("maxiter",))

@@ -631,6 +631,7 @@ class TrackingLoop:
             "cues": [list(c) for c in setup.cues],
             "refine": getattr(setup, "refine", "none"),
             "refine_prior": getattr(setup, "refine_prior", None),
+            "refine_depth": getattr(setup, "refine_depth", 0.0),
         }
         pose_writer.flush()
         groundtruth = getattr(self.source, "groundtruth", None)

@@ -41,6 +41,7 @@ __all__ = [
     "default_cues",
     "default_layers",
     "default_refine",
+    "default_refine_depth",
     "default_particles",
     "diffusion_std",
     "dump_config",
@@ -165,6 +166,19 @@ def default_refine(num_views: int, has_keypoints: bool) -> tuple[str, float]:
 REFINE_PRIOR_VIEWS = 1.0
 REFINE_PRIOR_PAIR = 30.0
 
+#: σ_d (m) of the refinement's depth term with a stereo pair's depth maps (:func:`default_refine_depth`).
+REFINE_DEPTH_SIGMA = 0.05
+
+
+def default_refine_depth(refine: str, has_depth: bool, num_views: int) -> float:
+    """σ_d (m) of ``refine_depth = None``, per input kind, as measured in
+    ``benchmarks/results/accuracy_default.md`` (six synthetic motions, realistic input, 3 seeds): the depth term of
+    the refinement (:mod:`jaxmocap.tracking.refine`: the camera depths of the trunk's and the limbs' joints read from
+    the depth maps) at :data:`REFINE_DEPTH_SIGMA` where the estimate is refined on a stereo pair with depth maps
+    (114.4 → 52.7 mm); 0 (none) otherwise: with four cameras the detections place the joints better than maps with
+    2 cm noise read at a fixed distance behind the surface (28.7 → 35.5 mm with them)."""
+    return REFINE_DEPTH_SIGMA if (refine != "none" and has_depth and num_views == 2) else 0.0
+
 
 def cues_text(cues) -> str:
     """``[("foreground", 1.0), ("coverage", 4.0)]`` → ``"foreground, coverage:4"`` (the ``--cues`` syntax)."""
@@ -215,7 +229,9 @@ class TrackOptions:
     2026-11; ``all``: every DOF; angle steps of full-turn DOFs wrapped into [−π, π));
     ``refine``: the filter's estimate refined on each frame's detections (:mod:`jaxmocap.tracking.refine`):
     ``estimate`` (the written pose), ``track`` (the particles moved with it), ``none``, or ``auto``
-    (:func:`default_refine`); ``refine_prior``: its prior weight λ;
+    (:func:`default_refine`); ``refine_prior``: its prior weight λ; ``refine_depth``: σ_d (m) of the refinement's
+    depth term on the trunk's and limbs' joints, read from the input's depth maps (0: none; None:
+    :func:`default_refine_depth`);
     ``diffusion_scale``: multiplies :func:`diffusion_std`; ``survival_target``: α of
     Deutscher's rule; ``loss_*``/``reinit_widen``: track loss (module docstring); ``on_bad_frame``: ``skip`` or
     ``stop``; ``overlay``: MP4 per view; ``resume``/``overwrite``: what to do with a previous run in the output
@@ -255,6 +271,7 @@ class TrackOptions:
     velocity_dofs: str = "root"
     refine: str = "auto"
     refine_prior: float | None = None
+    refine_depth: float | None = None
     diffusion_scale: float = 1.0
     survival_target: float = 0.5
     samples: int = 128
@@ -336,6 +353,7 @@ _IDENTITY_DEFAULTS = {
     "velocity_dofs": "translation",
     "refine": "none",
     "refine_prior": None,
+    "refine_depth": None,
 }
 
 

@@ -19,6 +19,16 @@ reweighted least squares, ``s`` = :data:`REFINE_ROBUST_PX`). The model's limb le
 the refined pose is the body that best explains every view's detections at once, which per-joint triangulation
 cannot do.
 
+With depth maps (``TrackOptions.refine_depth`` = ``σ_d``, :func:`jaxmocap.tracking.options.default_refine_depth`)
+the fit has a depth term as well, ``+ Σ_v Σ_j ω_vj ρ^z_vj (z_v(f_j(x)) − d_vj)²``
+(:func:`jaxmocap.fit.ik.fit_pose_2d` with ``depth``; ``z_v`` a joint's camera depth): ``d_vj`` is read from view ``v``'s map around the estimate's projection of joint
+``j`` (:meth:`KeypointRefiner.depth_targets`: the median of a 5×5 window, plus how far the joint lies behind the
+surface the map sees), for the joints of ``depth_joints`` (:data:`DEPTH_TRUNK`: the hips, shoulders and thorax),
+``ω_vj = 1/σ_d²`` and ``ρ^z`` the same Geman–McClure reweighting with scale :data:`REFINE_ROBUST_DEPTH` (a reading
+of something in front of the joint, an arm before the chest, is discounted). A stereo pair's detections fix a
+joint's distance along the rays only through a pixel or two of disparity and the skeleton's projected size
+(which a wrongly measured body turns into a wrong distance); the depth maps fix it directly.
+
 ``refine = "estimate"`` writes ``x*`` (outputs, velocity prediction, track-loss reference) and leaves the particles;
 ``"track"`` also moves every particle by ``x* − x̂`` (kept inside the joint limits), so that the next frame's search
 starts around the refined pose. The fit is traced into the filter's step: one program, no dispatch of its own
@@ -28,6 +38,7 @@ starts around the refined pose. The fit is traced into the filter's step: one pr
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -36,13 +47,34 @@ from jaxmocap.fit import ik
 from jaxmocap.geometry import camera
 from jaxmocap.geometry.body import EVAL_JOINTS
 from jaxmocap.io.keypoints import KEYPOINT_INDEX
+from jaxmocap.tracking.init import DEPTH_BEHIND_SURFACE, DEPTH_JOINTS
 
-__all__ = ["REFINE_MIN_CONFIDENCE", "REFINE_ROBUST_PX", "KeypointRefiner", "refine_pairs"]
+__all__ = [
+    "DEPTH_JOINTS_DEFAULT",
+    "DEPTH_LIMBS",
+    "DEPTH_TRUNK",
+    "REFINE_MIN_CONFIDENCE",
+    "REFINE_ROBUST_DEPTH",
+    "REFINE_ROBUST_PX",
+    "KeypointRefiner",
+    "refine_pairs",
+]
 
 #: detections of lower confidence are left out of the refinement (as of the first pose's fit)
 REFINE_MIN_CONFIDENCE = 0.1
 #: scale ``s`` (full-size pixels) of the refinement's Geman–McClure reweighting
 REFINE_ROBUST_PX = 10.0
+#: scale ``s_d`` (m) of the same reweighting of the depth term
+REFINE_ROBUST_DEPTH = 0.15
+#: ``(joint, s)`` of the depth term: the joints whose camera depths are read, each ``s`` (m) behind the surface
+#: the depth maps see (the trunk's joints :data:`~jaxmocap.tracking.init.DEPTH_BEHIND_SURFACE`)
+DEPTH_TRUNK = tuple((j, DEPTH_BEHIND_SURFACE) for j in DEPTH_JOINTS)
+#: the limbs' joints, about a limb's radius behind the surface
+DEPTH_LIMBS = tuple(
+    (f"{side}_{j}", 0.05) for side in ("left", "right") for j in ("elbow", "wrist", "knee", "ankle")
+)
+#: the joints of the depth term by default: trunk and limbs (measured in ``benchmarks/results/accuracy_default.md``)
+DEPTH_JOINTS_DEFAULT = DEPTH_TRUNK + DEPTH_LIMBS
 
 
 def refine_pairs(model) -> tuple[tuple[str, int], ...]:
@@ -62,7 +94,16 @@ class KeypointRefiner:
     (``λ``), ``mode`` (``"estimate"`` or ``"track"``)."""
 
     def __init__(
-        self, model, rig, pairs, sigma_px: float, prior: float, mode: str, robust_px: float | None = None
+        self,
+        model,
+        rig,
+        pairs,
+        sigma_px: float,
+        prior: float,
+        mode: str,
+        robust_px: float | None = None,
+        depth_sigma: float | None = None,
+        depth_joints=None,
     ):
         if mode not in ("estimate", "track"):
             raise ValueError(f"unknown refinement {mode!r}; choose estimate or track")
@@ -75,6 +116,11 @@ class KeypointRefiner:
         self.kidx = np.asarray([k for _, k in pairs])
         self.sigma_px, self.prior = float(sigma_px), float(prior)
         self.robust_px = None if robust_px is None else float(robust_px)
+        self.depth_sigma = None if depth_sigma is None else float(depth_sigma)
+        depth_joints = DEPTH_JOINTS_DEFAULT if depth_joints is None else depth_joints
+        depth_joints = [(j, s) for j, s in depth_joints if j in model.joint_names]
+        self.depth_idx = np.asarray([model.joint_names.index(j) for j, _ in depth_joints], np.int64)
+        self.depth_behind = np.asarray([s for _, s in depth_joints], np.float32)
 
     def targets(self, keypoints2d: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
         """``(V, K, 3)`` detections → ``uv (V, J, 2)`` pixels and weights ``w (V, J)`` in the model's joint order
@@ -87,18 +133,73 @@ class KeypointRefiner:
         w = jnp.zeros((V, J), keypoints2d.dtype).at[:, self.jidx].set(c)
         return uv, w
 
-    def __call__(self, state, info, keypoints2d: jnp.ndarray):
-        """The filter's ``(State, Info)`` after a frame → the same with the estimate refined (and, ``"track"``,
-        the particles moved with it). Traceable."""
-        uv, w = self.targets(keypoints2d)
+    def depth_targets(self, est: jnp.ndarray, depth: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
+        """Camera depths of the trunk joints (:data:`DEPTH_JOINTS`) read from the depth maps ``(V, H, W)`` (m, 0 =
+        none) at the estimate's projections: ``d_vj = s + median`` of the valid readings in the 5×5 pixels around
+        joint ``j``'s projection in view ``v`` (the joint lies ``s`` = :data:`DEPTH_BEHIND_SURFACE` behind the
+        surface), with weight ``1/σ_d²``; 0 for the other joints and where nothing was read. ``(V, J)`` each."""
+        V, H, W = depth.shape
+        X = ik.model_joints(self.model, est)[self.depth_idx]
+        px, zc = camera.project_with_depth(self.rig, X)  # (V, n, 2), (V, n)
+        off = jnp.arange(-2, 3)
+        col = jnp.round(px[..., 0])[..., None, None] + off[None, :]  # (V, n, 1, 5)
+        row = jnp.round(px[..., 1])[..., None, None] + off[:, None]  # (V, n, 5, 1)
+        inside = (col >= 0) & (col < W) & (row >= 0) & (row < H)
+        c = jnp.clip(col, 0, W - 1).astype(jnp.int32)
+        r = jnp.clip(row, 0, H - 1).astype(jnp.int32)
+        v = jnp.arange(V)[:, None, None, None]
+        read = depth.astype(est.dtype)[v, r, c]  # (V, n, 5, 5)
+        read = jnp.where(inside & (read > 0), read, jnp.nan).reshape(*read.shape[:2], -1)
+        d = jnp.nanmedian(read, axis=-1) + jnp.asarray(self.depth_behind, est.dtype)  # (V, n)
+        ok = jnp.isfinite(d) & (zc > 0)
+        J = len(self.model.joint_names)
+        z = jnp.zeros((V, J), est.dtype).at[:, self.depth_idx].set(jnp.where(ok, d, 0.0))
+        wz = (
+            jnp.zeros((V, J), est.dtype)
+            .at[:, self.depth_idx]
+            .set(jnp.where(ok, 1.0 / self.depth_sigma**2, 0.0))
+        )
+        return z, wz
+
+    def fit(self, est, uv, w, measured=None) -> jnp.ndarray:
+        """The fit from the estimate ``est`` (with the depth targets ``measured = (z, wz)`` when given)."""
+        if measured is None:
+            return ik.fit_pose_2d(self.model, self.rig, uv, w, est, prior_weight=self.prior)
+        z, wz = measured
+        return ik.fit_pose_2d(
+            self.model, self.rig, uv, w, est, prior_weight=self.prior, depth=z, depth_weights=wz
+        )
+
+    def __call__(self, state, info, obs):
+        """The filter's ``(State, Info)`` after a frame → the same with the estimate refined on the frame's
+        :class:`~jaxmocap.features.observation.Observation` ``obs`` (its ``keypoints2d (V, K, 3)``, and its
+        ``depth`` maps when the refinement reads depth and the observation has them) and, ``"track"``, the
+        particles moved with it. Traceable."""
+        uv, w = self.targets(obs.keypoints2d)
+        depth = obs.depth if (self.depth_sigma is not None and obs.has("depth")) else None
         est = info.estimate
-        refined = ik.fit_pose_2d(self.model, self.rig, uv, w, est, prior_weight=self.prior)
-        if self.robust_px is not None:
+        measured = None if depth is None else self.depth_targets(est, depth)
+        if self.robust_px is None:
+            refined = self.fit(est, uv, w, measured)
+        else:
             # one reweighting (IRLS) of Geman–McClure with scale s, w ← w / (1 + r²/s²)², fitted again from x̂
-            r = camera.project(self.rig, ik.model_joints(self.model, refined)) - uv
-            r2 = jnp.sum(r * r, axis=-1) / (self.robust_px * self.robust_px)
-            w = w / (1.0 + r2) ** 2
-            refined = ik.fit_pose_2d(self.model, self.rig, uv, w, est, prior_weight=self.prior)
+            # (the depth term's weights likewise with scale s_d): two passes of one loop, so that the fit is
+            # compiled once
+            def gm(r2, i):
+                return jnp.where(i == 0, 1.0, 1.0 / (1.0 + r2) ** 2)
+
+            def one_pass(i, refined):
+                X = ik.model_joints(self.model, refined)
+                px, zc = camera.project_with_depth(self.rig, X)
+                r = px - uv
+                rho = gm(jnp.sum(r * r, axis=-1) / (self.robust_px * self.robust_px), i)
+                if measured is None:
+                    return self.fit(est, uv, w * rho).astype(est.dtype)
+                z, wz = measured
+                rho_z = gm(((zc - z) / REFINE_ROBUST_DEPTH) ** 2, i)
+                return self.fit(est, uv, w * rho, (z, wz * rho_z)).astype(est.dtype)
+
+            refined = jax.lax.fori_loop(0, 2, one_pass, est)
         # a frame without usable detections (or a failed fit) keeps the filter's own estimate
         ok = (jnp.sum(w > 0) >= 4) & jnp.all(jnp.isfinite(refined))
         refined = jnp.where(ok, refined, est).astype(est.dtype)

@@ -43,6 +43,7 @@ from jaxmocap.tracking.options import (
     default_layers,
     default_particles,
     default_refine,
+    default_refine_depth,
     diffusion_std,
     parse_cues,
 )
@@ -250,12 +251,27 @@ class TrackSetup:
         self.refine_prior = prior if o.refine_prior is None else float(o.refine_prior)
         if self.refine != "none" and not source.has_keypoints:
             raise ValueError(f"--refine {self.refine} needs 2D keypoints (--keypoints)")
+        depth_sigma = (
+            default_refine_depth(self.refine, source.has_depth, source.rig.num_views)
+            if o.refine_depth is None
+            else o.refine_depth
+        )
+        self.refine_depth = float(depth_sigma) if self.refine != "none" else 0.0
+        if self.refine_depth < 0:
+            raise ValueError(
+                f"refine_depth must be a standard deviation in metres (0 = none), got {o.refine_depth}"
+            )
+        if self.refine_depth > 0 and not source.has_depth:
+            raise ValueError("--refine-depth needs depth maps (a sequence with depth/ or --depth)")
+        if self.refine_depth > 0:  # the depth maps reach the step even when no cue reads them
+            self.features.needs_depth = True
         self.refiner = None
         if self.refine != "none":
             f = self.features.extractor.config.downsample
             self.refiner = KeypointRefiner(
                 self.model, self.features.rig, refine_pairs(self.model), init_mod.KEYPOINT_SIGMA_PX / f,
                 self.refine_prior, self.refine, robust_px=REFINE_ROBUST_PX / f,
+                depth_sigma=self.refine_depth or None,
             )  # fmt: skip
 
     def refine_step(self, state, info, tobs):
@@ -263,7 +279,7 @@ class TrackSetup:
         (:mod:`jaxmocap.tracking.refine`; traced into the step); unchanged without a refinement."""
         if self.refiner is None:
             return state, info
-        return self.refiner(state, info, tobs.image.keypoints2d)
+        return self.refiner(state, info, tobs.image)
 
     def _check_camera_order(self, num: int = 16) -> None:
         """Inputs whose calibration no detections have checked (``source.check_silhouettes``): the centroids of
@@ -612,6 +628,7 @@ class TrackSetup:
             "cues": [list(c) for c in self.cues],
             "refine": self.refine,
             "refine_prior": self.refine_prior,
+            "refine_depth": self.refine_depth,
             "particles": self.num_particles,
             "layers": self.layers,
             "frames": [self.frames[0], self.frames[-1] + 1],

@@ -13,11 +13,18 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxmocap.features.observation import make_observation
 from jaxmocap.filters.base import State
 from jaxmocap.fit import ik
 from jaxmocap.geometry import body, camera
 from jaxmocap.tracking import init as init_mod
-from jaxmocap.tracking.refine import REFINE_ROBUST_PX, KeypointRefiner, refine_pairs
+from jaxmocap.tracking.refine import (
+    DEPTH_JOINTS_DEFAULT,
+    DEPTH_TRUNK,
+    REFINE_ROBUST_PX,
+    KeypointRefiner,
+    refine_pairs,
+)
 
 
 def _ring(target, distance=4.0, f=256.0, size=(320, 240)):
@@ -40,6 +47,11 @@ class _Info(NamedTuple):
     """The part of the filter's ``Info`` the refinement reads and replaces."""
 
     estimate: jnp.ndarray
+
+
+def _Obs(keypoints2d, depth=None):
+    """The frame's observation with detections ``(V, 15, 3)`` (and depth maps ``(V, H, W)``) only."""
+    return make_observation(num_views=keypoints2d.shape[0], keypoints2d=np.asarray(keypoints2d), depth=depth)
 
 
 @pytest.fixture(scope="module")
@@ -89,7 +101,7 @@ def test_refinement_brings_a_wrong_estimate_to_the_detected_pose(scene, mode):
     )
     state = State(jnp.asarray(particles), jnp.full(16, -np.log(16.0)), jnp.asarray(est))
     refiner = KeypointRefiner(model, rig, pairs, init_mod.KEYPOINT_SIGMA_PX, 1.0, mode)
-    new, info = jax.jit(refiner)(state, _Info(jnp.asarray(est)), kp)
+    new, info = jax.jit(refiner)(state, _Info(jnp.asarray(est)), _Obs(kp))
     start, err = _joints_error(model, est, X), _joints_error(model, info.estimate, X)
     seen = [model.joint_names.index(j) for j, _ in pairs]
     assert start[seen].mean() > 0.05
@@ -112,7 +124,7 @@ def test_a_frame_without_detections_keeps_the_filters_estimate(scene):
     est = _wrong(model, x)
     state = State(jnp.asarray(est[None]), jnp.zeros(1), jnp.asarray(est))
     refiner = KeypointRefiner(model, rig, pairs, init_mod.KEYPOINT_SIGMA_PX, 1.0, "track")
-    new, info = refiner(state, _Info(jnp.asarray(est)), kp.at[..., 2].set(0.0))
+    new, info = refiner(state, _Info(jnp.asarray(est)), _Obs(kp.at[..., 2].set(0.0)))
     np.testing.assert_array_equal(np.asarray(info.estimate), est)
     np.testing.assert_array_equal(np.asarray(new.particles), est[None])
 
@@ -124,7 +136,7 @@ def test_a_stronger_prior_stays_nearer_the_filters_estimate(scene):
     moves = []
     for prior in (1.0, 1e4):
         _, info = KeypointRefiner(model, rig, pairs, 3.0, prior, "estimate")(
-            state, _Info(jnp.asarray(est)), kp
+            state, _Info(jnp.asarray(est)), _Obs(kp)
         )
         moves.append(np.abs(np.asarray(info.estimate) - est).sum())
     assert moves[1] < 0.5 * moves[0], moves
@@ -155,10 +167,112 @@ def test_the_reweighting_discounts_a_wrong_detection(scene):
     errs = {}
     for robust in (None, REFINE_ROBUST_PX):
         refiner = KeypointRefiner(model, rig, pairs, init_mod.KEYPOINT_SIGMA_PX, 1.0, "estimate", robust)
-        _, info = refiner(state, _Info(jnp.asarray(est)), wrong)
+        _, info = refiner(state, _Info(jnp.asarray(est)), _Obs(wrong))
         errs[robust] = _joints_error(model, info.estimate, X)
     assert errs[REFINE_ROBUST_PX][seen].max() < 0.015, errs[REFINE_ROBUST_PX]
     assert errs[None][wrist] > 3.0 * errs[REFINE_ROBUST_PX][wrist], (
         errs[None][wrist],
         errs[REFINE_ROBUST_PX][wrist],
     )
+
+
+def _pair(target, distance=4.0, baseline=0.3, f=256.0, size=(320, 240)):
+    """A stereo pair ``baseline`` apart, ``distance`` in front of ``target`` along −x, both looking along +x."""
+    Ks, Rs, ts = [], [], []
+    R = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])  # camera x = −world y, y = −z, z = +x
+    for s in (-0.5, 0.5):
+        c = np.asarray(target) + np.array([-distance, s * baseline, 0.0])
+        Ks.append(np.array([[f, 0, size[0] / 2], [0, f, size[1] / 2], [0, 0, 1.0]]))
+        Rs.append(R)
+        ts.append(-R @ c)
+    return camera.from_opencv(Ks, np.zeros((2, 5)), Rs, ts, image_size=[size] * 2)
+
+
+def _opencv_depth_maps(rig, X, joints, half=4, size=(320, 240)):
+    """Depth maps ``(V, H, W)`` (m, 0 = none) as a depth sensor would read the body's front surface near the
+    trunk joints: a ``(2 half + 1)²`` patch around each joint's projection (``cv2.projectPoints``) at its camera
+    depth (``R X + t``, third row) less :data:`~jaxmocap.tracking.init.DEPTH_BEHIND_SURFACE`."""
+    W, H = size
+    maps = np.zeros((rig.num_views, H, W), np.float32)
+    for v in range(rig.num_views):
+        R, t = np.asarray(rig.R[v], np.float64), np.asarray(rig.t[v], np.float64)
+        uv, _ = cv2.projectPoints(
+            X[joints], cv2.Rodrigues(R)[0], t, np.asarray(rig.K[v], np.float64), np.zeros(5)
+        )
+        z = (X[joints] @ R.T + t)[:, 2]
+        for (u, w), zj in zip(uv.reshape(-1, 2), z, strict=True):
+            c, r = int(round(u)), int(round(w))
+            maps[v, r - half : r + half + 1, c - half : c + half + 1] = zj - init_mod.DEPTH_BEHIND_SURFACE
+    return maps
+
+
+def test_depth_targets_read_a_plane_at_the_joints_projections(scene):
+    """A fronto-parallel plane at camera depth 3.7 m in every view, with a hole around the thorax's projection in
+    view 0: each joint of the depth term (:data:`DEPTH_JOINTS_DEFAULT`: trunk and limbs) gets 3.7 m plus its
+    distance behind the surface as its target, at weight ``1/σ_d²``; the thorax in view 0 and the other joints
+    (the root, the head) have weight 0."""
+    model, rig, x, X, kp, pairs = scene
+    sigma = 0.05
+    refiner = KeypointRefiner(model, rig, pairs, 3.0, 1.0, "estimate", depth_sigma=sigma)
+    depth = np.full((4, 240, 320), 3.7, np.float32)
+    uv = np.asarray(camera.project(rig, jnp.asarray(X, jnp.float32)))
+    thorax = model.joint_names.index("thorax")
+    c, r = (int(round(a)) for a in uv[0, thorax])
+    depth[0, r - 3 : r + 4, c - 3 : c + 4] = 0.0
+    z, wz = (np.asarray(a) for a in refiner.depth_targets(jnp.asarray(x, jnp.float32), jnp.asarray(depth)))
+    expected_w, expected_z = np.zeros_like(wz), np.zeros_like(z)
+    for j, behind in DEPTH_JOINTS_DEFAULT:
+        expected_w[:, model.joint_names.index(j)] = 1.0 / sigma**2
+        expected_z[:, model.joint_names.index(j)] = 3.7 + behind
+    expected_w[0, thorax] = expected_z[0, thorax] = 0.0
+    assert {j for j, _ in DEPTH_JOINTS_DEFAULT} == set(model.joint_names) - {"root", "head"}
+    np.testing.assert_allclose(wz, expected_w, rtol=1e-6)
+    np.testing.assert_allclose(z, expected_z, rtol=1e-6)
+
+
+def test_the_depth_term_holds_a_stereo_fit_at_the_measured_depth(scene):
+    """A stereo pair 0.3 m apart 4 m from the subject (f = 256 px) and a model 10 % larger than the body (its
+    dimensions measured badly): a 10 % larger body 0.4 m further away projects the same, and a pixel of disparity
+    is about 0.2 m there, so the keypoint fit (2 px noise, the pair's prior weight 30, from the true pose) moves
+    the trunk away from the cameras, by more than 8 cm (measured 11 cm, the prior holding it back); with the depth
+    term (σ_d = 5 cm, depth maps read at the true trunk joints' surface as :func:`_opencv_depth_maps` builds them)
+    the trunk's mean depth is within 3 cm of the truth (measured 1.1 cm)."""
+    model, _, x, X, _, pairs = scene
+    big = body.full25({k: 1.1 * np.asarray(v) for k, v in body.DEFAULT_DIMENSIONS.items()})
+    rig = _pair(X[0]).to_jax(jnp.float32)
+    rng = np.random.default_rng(3)
+    kp = np.zeros((2, len(body.EVAL_JOINTS), 3), np.float32)
+    uv = np.asarray(camera.project(rig, jnp.asarray(X, jnp.float32)))
+    for j, k in pairs:
+        kp[:, k, :2] = uv[:, model.joint_names.index(j)] + 2.0 * rng.standard_normal((2, 2))
+        kp[:, k, 2] = 1.0
+    trunk = [model.joint_names.index(j) for j in init_mod.DEPTH_JOINTS]
+    depth = _opencv_depth_maps(rig, X, trunk)
+    est = x.astype(np.float32)
+    state = State(jnp.asarray(est[None]), jnp.zeros(1), jnp.asarray(est))
+    off = {}
+    for sigma in (None, 0.05):
+        refiner = KeypointRefiner(
+            big, rig, pairs, init_mod.KEYPOINT_SIGMA_PX, 30.0, "estimate", depth_sigma=sigma,
+            depth_joints=DEPTH_TRUNK,
+        )  # fmt: skip
+        _, info = jax.jit(refiner)(state, _Info(jnp.asarray(est)), _Obs(kp, depth))
+        fitted = np.asarray(ik.model_joints(big, info.estimate))
+        off[sigma] = float(np.mean(fitted[trunk, 0]) - np.mean(X[trunk, 0]))  # world x: away from the pair
+    assert off[None] > 0.08, off
+    assert abs(off[0.05]) < 0.03, off
+
+
+def test_without_depth_maps_the_depth_term_is_left_out(scene):
+    """A refiner with a depth term given an observation without depth maps fits the detections alone: the same
+    estimate as a refiner without it."""
+    model, rig, x, X, kp, pairs = scene
+    est = _wrong(model, x)
+    state = State(jnp.asarray(est[None]), jnp.zeros(1), jnp.asarray(est))
+    out = [
+        KeypointRefiner(model, rig, pairs, 3.0, 1.0, "estimate", depth_sigma=s)(
+            state, _Info(jnp.asarray(est)), _Obs(kp)
+        )[1]
+        for s in (None, 0.05)
+    ]
+    np.testing.assert_array_equal(np.asarray(out[0].estimate), np.asarray(out[1].estimate))

@@ -20,11 +20,13 @@ from jaxmocap.synth import generate as synth
 from jaxmocap.tracking import smoothing, tracker
 from jaxmocap.tracking.options import (
     FILTERS,
+    REFINE_DEPTH_SIGMA,
     REFINE_PRIOR_PAIR,
     TrackOptions,
     default_cues,
     default_layers,
     default_particles,
+    default_refine_depth,
     diffusion_std,
     parse_cues,
 )
@@ -324,6 +326,25 @@ def test_refinement_options_are_checked_against_the_input(sequence):
     assert (pair.refine, pair.refine_prior) == ("track", REFINE_PRIOR_PAIR)
     given = TrackSetup(SequenceSource(sequence), TrackOptions(refine="track", refine_prior=2.0, frames="0:2"))
     assert (given.refiner.mode, given.refiner.prior) == ("track", 2.0)
+    # the depth term: a standard deviation, and depth maps to read (then read even without a depth cue)
+    assert pair.refine_depth == REFINE_DEPTH_SIGMA and pair.refiner.depth_sigma == (
+        REFINE_DEPTH_SIGMA or None
+    )
+    with pytest.raises(ValueError, match="refine_depth"):
+        TrackSetup(SequenceSource(sequence), TrackOptions(refine_depth=-0.1, frames="0:2"))
+    no_depth = SequenceSource(sequence)
+    no_depth.has_depth = False
+    with pytest.raises(ValueError, match="needs depth maps"):
+        TrackSetup(no_depth, TrackOptions(refine_depth=0.05, frames="0:2"))
+    assert TrackSetup(no_depth, TrackOptions(frames="0:2")).refine_depth == 0.0
+    depth = TrackSetup(
+        SequenceSource(sequence), TrackOptions(cues="foreground", refine_depth=0.05, frames="0:2")
+    )
+    assert depth.refiner.depth_sigma == 0.05 and depth.features.needs_depth
+    # by default only a stereo pair's refinement reads the depth maps (four cameras: none; nothing to refine: none)
+    assert default_refine_depth("track", True, 2) == REFINE_DEPTH_SIGMA > 0
+    assert default_refine_depth("track", True, 4) == default_refine_depth("none", True, 2) == 0.0
+    assert default_refine_depth("track", False, 2) == 0.0
 
 
 class _MasksGone(_NoFirstDetections):
