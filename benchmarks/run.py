@@ -245,6 +245,13 @@ SCRIPTS: dict[str, Script] = {
     "profile_likelihood": Script(
         "Where the compiled likelihood spends its time", "perf/profile_likelihood.py"
     ),
+    "refine_cost": Script(
+        "Frames/s of the defaults with and without the refinement's depth term, and of the revision before it",
+        "perf/refine_cost.py",
+        "--rounds 3 --busy --against e683eeb --out benchmarks/results/refine_cost.md",
+        writes=("refine_cost.md",),
+        slow=True,
+    ),
     "run_rate": Script(
         "Whole-run frames/s of a 3000-frame track against its step rate (the cost of the outputs)",
         "perf/run_rate.py",

@@ -95,26 +95,26 @@ COMMON = [j for j, n in enumerate(EVAL_JOINTS) if n != "head"]
 GOALS = {"ring4": 30.0, "stereo": 60.0}
 GOAL_FPS = 10.0
 #: what the tables show (written for the measured tables: ``python benchmarks/experiments/accuracy_default.py
-#: --seeds 3``, 2026-11-25 15:08 UTC)
+#: --seeds 3``, 2026-11-28 22:13 UTC)
 READING = (
-    "Reading (written for the run of 2026-11-25 18:26 UTC, 3 seeds, the defaults: the filter's estimate refined on "
+    "Reading (written for the run of 2026-11-28 22:13 UTC, 3 seeds, the defaults: the filter's estimate refined on "
     "each frame's detections and the particles moved with it, `jaxmocap.tracking.refine`, prior weight 1 with four "
-    "cameras and 30 with the stereo pair; the keypoints cue at weight 32, the root's angles in the velocity "
-    "prediction): the four-camera goal holds, the stereo goal does not. Four cameras: 28.8 mm over the 15 joints, "
-    "28.4 mm mean (25.3 mm median) over the 14 joints against 43.2 mm (35.0 mm) for the triangulation of the same "
-    "detections, below it on every clip (24.1-32.4 against 35.4-45.4 mm) and on every joint (the root 43.5 against "
-    "94.0 mm: the mocap root is not the middle of the hips), at 16.0 frames/s; without the "
-    "refinement (the previous version of this file) 47.1 mm, above the triangulation on four clips of six: the "
-    "annealed filter's mean of 300 particles resolved the wrists to 52-58 mm where the detections triangulate to "
-    "29-33 mm. Stereo: 106.4 mm over the 15 joints (107.0 mm mean, 75.6 mm median over the 14), against 139.7 mm "
-    "without the refinement and 858.9 mm (250.6 mm) for the triangulation (at f = 256 px a 0.30 m baseline about "
-    "4 m from the subject turns one pixel of disparity into about 0.2 m of depth); the wrists and ankles (133-151 "
-    "mm) and the turn and the crouch (124.4, 135.5 mm) are the worst, far from the 60 mm goal. With two cameras a "
-    "weak prior lets the fit slide along the rays: prior weight 1 gave 147.9 mm, 30 the minimum of the sweep at the "
-    "end of this file. No run started more than 0.5 m off: the first pose is the model fitted to the detections' "
-    "reprojection, with the depth maps deciding along the rays (`jaxmocap.tracking.init.keypoint_pose`). Speed: "
-    "this run had the machine nearly to itself (load average 1.5-2.2): 25.4 (stereo) and 16.0 (four cameras) "
-    "frames/s."
+    "cameras and 30 with the stereo pair, whose refinement also reads the depth maps at the trunk's and the limbs' "
+    "joints (sigma_d 5 cm); the keypoints cue at weight 32, the root's angles in the velocity prediction): both "
+    "goals hold. Stereo: 52.7 mm over the 15 joints (50.9 mm mean, 31.7 mm median over the 14) against 114.4 mm "
+    "without the depth term in the same code (106.4 mm in the previous version of this file) and 858.8 mm (250.6 "
+    "mm) for the triangulation (at f = 256 px a 0.30 m baseline about 4 m from the subject turns one pixel of "
+    "disparity into about 0.2 m of depth: the detections leave a joint's distance along the rays nearly free, the "
+    "depth maps fix it); every clip 23.9-73.2 mm, the crouch and the walk the worst; the wrists and ankles still "
+    "have long tails (95th percentiles 137-337 mm: a limb put on the wrong side of the body along the rays for a "
+    "few frames), at 12.6 frames/s. Four cameras: unchanged (the depth term is off by default with three or more "
+    "views: it made them worse, 35.5 mm), 28.7 mm over the 15 joints, 28.4 mm mean (25.3 mm median) over the 14 "
+    "against 43.2 mm (35.0 mm) for the triangulation of the same detections, below it on every clip and every "
+    "joint, at 8.1 frames/s. No run started more than 0.5 m off: the first pose is the model fitted to the "
+    "detections' reprojection, with the depth maps deciding along the rays (`jaxmocap.tracking.init.keypoint_pose`). "
+    "Speed: this run had the machine to itself (load average 1.5-2.0), and the machine ran this code about half as "
+    "fast as the one that gave the previous version of this file its 25.4 and 16.0 frames/s; side by side in one "
+    "process the depth term costs about 10 % of the stereo rate (`benchmarks/results/refine_cost.md`)."
 )
 #: a run whose first frame is off by more than this (mean over the joints, mm) did not start on the subject
 BAD_START_MM = 500.0

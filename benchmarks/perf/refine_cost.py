@@ -1,0 +1,172 @@
+"""What the refinement's depth term costs: frames/s of ``jaxmocap track`` with its defaults, side by side.
+
+The bundled CMU walk rendered by :func:`jaxmocap.synth.generate.synthesize` (``--frames`` frames at ``--size``,
+seed 0) for each rig of ``--rigs`` (``stereo``: two cameras 0.3 m apart, whose default refinement reads the depth
+maps; ``ring4``: four cameras around, whose default does not), read as a recording
+(:class:`jaxmocap.io.sources.SequenceSource` with ``recording=True``), tracked by
+:class:`jaxmocap.tracking.tracker.Tracker` in one process with:
+
+* ``default`` — this checkout's defaults;
+* ``no depth`` — the same with ``refine_depth=0`` (the refinement on the detections alone);
+* ``REV`` (``--against REV``) — the defaults of the package at git revision ``REV``
+  (:func:`common.package_at`), e.g. the revision before the depth term.
+
+Each configuration is run once to compile (the persistent compilation cache on), then ``--rounds`` interleaved
+rounds, the order rotated each round; ``--busy`` adds as many rounds again with a CPU-bound process beside them
+(a second core's worth of work, as a machine doing other things). Reported per round: each configuration's
+frames/s after the first frame (the summary's ``frames_per_s``), its ratio to ``default``, and the load average.
+
+    python benchmarks/perf/refine_cost.py [--rigs stereo ring4] [--frames 40] [--size 320x240] [--rounds 3]
+        [--busy] [--against REV] [--out benchmarks/results/refine_cost.md]
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import pathlib
+import subprocess
+import sys
+import tempfile
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmarks/: the shared modules
+import common
+import numpy as np
+
+from jaxmocap import compilation_cache
+from jaxmocap.io.sources import SequenceSource
+from jaxmocap.synth import generate as synth
+from jaxmocap.tracking.options import TrackOptions
+from jaxmocap.tracking.tracker import Tracker
+
+
+@contextlib.contextmanager
+def busy_process():
+    """A CPU-bound child process for the duration (a second core's worth of other work)."""
+    proc = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    try:
+        yield
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+def configurations(against: str | None):
+    """``{name: run(seq, out) -> frames/s}`` of the compared trackers."""
+
+    def ours(**options):
+        def run(seq, out):
+            src = SequenceSource(seq, recording=True)
+            try:
+                opts = TrackOptions(overwrite=True, **options)
+                return float(Tracker(src, out, opts, quiet=True).run()["frames_per_s"])
+            finally:
+                src.close()
+
+        return run
+
+    out = {"default": ours(), "no depth": ours(refine_depth=0.0)}
+    if against:
+        common.package_at(against, "tracking.tracker")
+        rev_tracker = sys.modules["jaxmocap_at_rev.tracking.tracker"]
+        rev_options = sys.modules["jaxmocap_at_rev.tracking.options"]
+        rev_sources = sys.modules["jaxmocap_at_rev.io.sources"]
+
+        def theirs(seq, out_dir):
+            src = rev_sources.SequenceSource(seq, recording=True)
+            try:
+                opts = rev_options.TrackOptions(overwrite=True)
+                return float(rev_tracker.Tracker(src, out_dir, opts, quiet=True).run()["frames_per_s"])
+            finally:
+                src.close()
+
+        label = subprocess.run(
+            ["git", "-C", str(common.ROOT), "rev-parse", "--short", against], capture_output=True, text=True
+        ).stdout.strip()
+        out[label or against] = theirs
+    return out
+
+
+def table_row(label: str, load: str, fps: dict, ratio: dict, bold: bool = False) -> str:
+    """One row of a rig's table: frames/s of every configuration, then each ratio to ``default``."""
+    b = "**" if bold else ""
+    cells = [f"{b}{v:.1f}{b}" for v in fps.values()] + [f"{b}{v:.3f}{b}" for v in ratio.values()]
+    return f"| {label} | {load} | " + " | ".join(cells) + " |"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--rigs", nargs="+", default=["stereo", "ring4"], choices=["stereo", "ring4"])
+    ap.add_argument("--frames", type=int, default=40)
+    ap.add_argument("--size", default="320x240")
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--busy", action="store_true", help="as many rounds again beside a CPU-bound process")
+    ap.add_argument("--against", metavar="REV", help="also the defaults of the package at git revision REV")
+    ap.add_argument("--out", default=None, help="write the table here (default: print only)")
+    a = ap.parse_args(argv)
+    compilation_cache.enable()
+    configs = configurations(a.against)
+    names = list(configs)
+    lines = []
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = pathlib.Path(tmp)
+        for rig in a.rigs:
+            seq = tmp / f"walk_{rig}"
+            synth.synthesize("demo", seq, rig=rig, frames=f"0:{4 * a.frames}", size=a.size, seed=0)
+            for name in names:  # compile (or load from the cache) once each
+                configs[name](seq, tmp / "run")
+            rows = []
+            phases = [("idle", a.rounds)] + ([("busy", a.rounds)] if a.busy else [])
+            for phase, rounds in phases:
+                with busy_process() if phase == "busy" else contextlib.nullcontext():
+                    for r in range(rounds):
+                        order = names[r % len(names) :] + names[: r % len(names)]
+                        load = os.getloadavg()[0]
+                        fps = {n: configs[n](seq, tmp / "run") for n in order}
+                        rows.append((phase, r, load, fps))
+                        print(
+                            f"{rig} {phase} round {r}: "
+                            + ", ".join(f"{n} {fps[n]:.1f}" for n in names)
+                            + f" frames/s (load {load:.1f})",
+                            flush=True,
+                        )
+            lines += [
+                f"### {rig}\n",
+                "| round | load | "
+                + " | ".join(f"{n} frames/s" for n in names)
+                + " | "
+                + " | ".join(f"{n} ÷ default" for n in names[1:])
+                + " |",
+                "|---" * (2 + 2 * len(names) - 1) + "|",
+            ]
+            for phase, r, load, fps in rows:
+                ratio = {n: fps[n] / fps["default"] for n in names[1:]}
+                lines.append(table_row(f"{phase} {r}", f"{load:.1f}", fps, ratio))
+            for phase, _ in phases:
+                sel = [fps for p, _, _, fps in rows if p == phase]
+                med = {n: float(np.median([f[n] for f in sel])) for n in names}
+                ratio = {n: float(np.median([f[n] / f["default"] for f in sel])) for n in names[1:]}
+                lines.append(table_row(f"**{phase}, median**", "", med, ratio, bold=True))
+            lines.append("")
+    cmd = f"python {common.script(__file__)} " + " ".join(sys.argv[1:] if argv is None else argv)
+    text = "\n".join(
+        [
+            "# The refinement's depth term: frames/s side by side\n",
+            f"Reproduce: `{cmd}` ({common.stamp()}, {common.machine_line()})\n",
+            f"The bundled walk, {a.frames} frames at {a.size}, read as a recording; `jaxmocap track`'s defaults "
+            "(`default`), the same without the depth term (`no depth`: `refine_depth=0`)"
+            + (f", and the defaults of revision `{names[-1]}` (`--against {a.against}`)" if a.against else "")
+            + "; frames/s after the first frame, interleaved rounds in one process (module docstring of "
+            "`benchmarks/perf/refine_cost.py`). Only the stereo pair's defaults read the depth maps.\n",
+            *lines,
+        ]
+    )
+    print(text)
+    if a.out:
+        common.write_result(pathlib.Path(a.out), text, cmd)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
