@@ -54,7 +54,7 @@ from jaxmocap.geometry.body import EVAL_JOINTS
 from jaxmocap.io import calibration
 from jaxmocap.io.keypoints import KEYPOINT_INDEX
 from jaxmocap.io.pose2sim import JOINT_OF_TRC, Pose2SimSource, open_project, reference_joints
-from jaxmocap.tracking import smoothing
+from jaxmocap.tracking.smoothing import butterworth, parse_smooth
 
 #: the tracker's default cues for such a folder (the keypoints cue at its default weight, 32)
 CUES = "foreground,edge_distance,coverage:4,keypoints:32"
@@ -195,7 +195,7 @@ def smoothed(points: np.ndarray, fps: float, smooth: str) -> np.ndarray:
     """``points (T, 15, 3)`` through the exported track's filter (``smooth``, the ``--smooth`` spelling: the same
     zero-phase Butterworth low-pass, :func:`jaxmocap.tracking.smoothing.butterworth`) coordinate by coordinate,
     each joint's missing frames interpolated for the filter and left missing after it."""
-    cutoff = smoothing.parse_smooth(smooth, fps)
+    cutoff = parse_smooth(smooth, fps)
     out = np.full_like(points, np.nan)
     t = np.arange(points.shape[0])
     for j in range(points.shape[1]):
@@ -203,7 +203,7 @@ def smoothed(points: np.ndarray, fps: float, smooth: str) -> np.ndarray:
         if ok.sum() < 2:
             continue
         filled = np.stack([np.interp(t, t[ok], points[ok, j, c]) for c in range(3)], axis=-1)
-        out[:, j] = filled if cutoff is None else smoothing.butterworth(filled, fps, cutoff)
+        out[:, j] = filled if cutoff is None else butterworth(filled, fps, cutoff)
         out[~ok, j] = np.nan
     return out
 
