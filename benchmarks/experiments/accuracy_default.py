@@ -108,7 +108,7 @@ READING = (
     "depth maps fix it); every clip 23.9-73.2 mm, the crouch and the walk the worst; the wrists and ankles still "
     "have long tails (95th percentiles 137-337 mm: a limb put on the wrong side of the body along the rays for a "
     "few frames), at 12.6 frames/s. Four cameras: unchanged (the depth term is off by default with three or more "
-    "views: it made them worse, 35.5 mm), 28.7 mm over the 15 joints, 28.4 mm mean (25.3 mm median) over the 14 "
+    "views: it made them worse, 33.0 mm over 17 of the 18 runs), 28.7 mm over the 15 joints, 28.4 mm mean (25.3 mm median) over the 14 "
     "against 43.2 mm (35.0 mm) for the triangulation of the same detections, below it on every clip and every "
     "joint, at 8.1 frames/s. No run started more than 0.5 m off: the first pose is the model fitted to the "
     "detections' reprojection, with the depth maps deciding along the rays (`jaxmocap.tracking.init.keypoint_pose`). "

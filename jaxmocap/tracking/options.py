@@ -176,7 +176,7 @@ def default_refine_depth(refine: str, has_depth: bool, num_views: int) -> float:
     the refinement (:mod:`jaxmocap.tracking.refine`: the camera depths of the trunk's and the limbs' joints read from
     the depth maps) at :data:`REFINE_DEPTH_SIGMA` where the estimate is refined on a stereo pair with depth maps
     (114.4 → 52.7 mm); 0 (none) otherwise: with four cameras the detections place the joints better than maps with
-    2 cm noise read at a fixed distance behind the surface (28.7 → 35.5 mm with them)."""
+    2 cm noise read at a fixed distance behind the surface (28.7 → 33.0 mm with them)."""
     return REFINE_DEPTH_SIGMA if (refine != "none" and has_depth and num_views == 2) else 0.0
 
 

@@ -21,13 +21,15 @@ cannot do.
 
 With depth maps (``TrackOptions.refine_depth`` = ``σ_d``, :func:`jaxmocap.tracking.options.default_refine_depth`)
 the fit has a depth term as well, ``+ Σ_v Σ_j ω_vj ρ^z_vj (z_v(f_j(x)) − d_vj)²``
-(:func:`jaxmocap.fit.ik.fit_pose_2d` with ``depth``; ``z_v`` a joint's camera depth): ``d_vj`` is read from view ``v``'s map around the estimate's projection of joint
-``j`` (:meth:`KeypointRefiner.depth_targets`: the median of a 5×5 window, plus how far the joint lies behind the
-surface the map sees), for the joints of ``depth_joints`` (:data:`DEPTH_TRUNK`: the hips, shoulders and thorax),
-``ω_vj = 1/σ_d²`` and ``ρ^z`` the same Geman–McClure reweighting with scale :data:`REFINE_ROBUST_DEPTH` (a reading
-of something in front of the joint, an arm before the chest, is discounted). A stereo pair's detections fix a
-joint's distance along the rays only through a pixel or two of disparity and the skeleton's projected size
-(which a wrongly measured body turns into a wrong distance); the depth maps fix it directly.
+(:func:`jaxmocap.fit.ik.fit_pose_2d` with ``depth``; ``z_v`` a joint's camera depth): ``d_vj`` is read from view
+``v``'s map around the estimate's projection of joint ``j`` (:meth:`KeypointRefiner.depth_targets`: the median of
+a 5×5 window, plus how far the joint lies behind the surface the map sees), for the joints of ``depth_joints``
+(:data:`DEPTH_JOINTS_DEFAULT`: the hips, shoulders and thorax 0.10 m behind the surface, the elbows, wrists, knees
+and ankles 0.05 m), ``ω_vj = 1/σ_d²`` and ``ρ^z`` the same Geman–McClure reweighting with scale
+:data:`REFINE_ROBUST_DEPTH` (a reading of something in front of the joint, an arm before the chest, is
+discounted). A stereo pair's detections fix a joint's distance along the rays only through a pixel or two of
+disparity and the skeleton's projected size (which a wrongly measured body turns into a wrong distance); the depth
+maps fix it directly.
 
 ``refine = "estimate"`` writes ``x*`` (outputs, velocity prediction, track-loss reference) and leaves the particles;
 ``"track"`` also moves every particle by ``x* − x̂`` (kept inside the joint limits), so that the next frame's search
@@ -134,10 +136,10 @@ class KeypointRefiner:
         return uv, w
 
     def depth_targets(self, est: jnp.ndarray, depth: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
-        """Camera depths of the trunk joints (:data:`DEPTH_JOINTS`) read from the depth maps ``(V, H, W)`` (m, 0 =
-        none) at the estimate's projections: ``d_vj = s + median`` of the valid readings in the 5×5 pixels around
-        joint ``j``'s projection in view ``v`` (the joint lies ``s`` = :data:`DEPTH_BEHIND_SURFACE` behind the
-        surface), with weight ``1/σ_d²``; 0 for the other joints and where nothing was read. ``(V, J)`` each."""
+        """Camera depths of the joints of ``depth_joints`` read from the depth maps ``(V, H, W)`` (m, 0 = none) at
+        the estimate ``est``'s projections: ``d_vj = s_j + median`` of the valid readings in the 5×5 pixels around
+        joint ``j``'s projection in view ``v`` (the joint lies ``s_j`` behind the surface the map sees), with weight
+        ``1/σ_d²``; 0 for the other joints, outside the image and where nothing was read. ``(V, J)`` each."""
         V, H, W = depth.shape
         X = ik.model_joints(self.model, est)[self.depth_idx]
         px, zc = camera.project_with_depth(self.rig, X)  # (V, n, 2), (V, n)
