@@ -54,7 +54,7 @@ from jaxmocap.geometry.body import EVAL_JOINTS
 from jaxmocap.io import calibration
 from jaxmocap.io.keypoints import KEYPOINT_INDEX
 from jaxmocap.io.pose2sim import JOINT_OF_TRC, Pose2SimSource, open_project, reference_joints
-from jaxmocap.tracking.smoothing import butterworth, parse_smooth
+from jaxmocap.tracking.smoothing import butterworth, fill_gaps, parse_smooth
 
 #: the tracker's default cues for such a folder (the keypoints cue at its default weight, 32)
 CUES = "foreground,edge_distance,coverage:4,keypoints:32"
@@ -194,7 +194,7 @@ def triangulated(rig_full: camera.Rig, kp_full: np.ndarray, cams) -> np.ndarray:
 def smoothed(points: np.ndarray, fps: float, smooth: str) -> np.ndarray:
     """``points (T, 15, 3)`` through the exported track's filter (``smooth``, the ``--smooth`` spelling: the same
     zero-phase Butterworth low-pass, :func:`jaxmocap.tracking.smoothing.butterworth`) coordinate by coordinate,
-    each joint's missing frames interpolated for the filter and left missing after it."""
+    each joint's missing frames interpolated for the filter (:func:`jaxmocap.tracking.smoothing.fill_gaps`) and left missing after it."""
     cutoff = parse_smooth(smooth, fps)
     out = np.full_like(points, np.nan)
     t = np.arange(points.shape[0])
@@ -202,7 +202,7 @@ def smoothed(points: np.ndarray, fps: float, smooth: str) -> np.ndarray:
         ok = np.all(np.isfinite(points[:, j]), axis=-1)
         if ok.sum() < 2:
             continue
-        filled = np.stack([np.interp(t, t[ok], points[ok, j, c]) for c in range(3)], axis=-1)
+        filled, _ = fill_gaps(t, t, points[:, j], ok)
         out[:, j] = filled if cutoff is None else butterworth(filled, fps, cutoff)
         out[~ok, j] = np.nan
     return out

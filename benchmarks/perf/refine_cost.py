@@ -13,7 +13,7 @@ maps; ``ring4``: four cameras around, whose default does not), read as a recordi
 
 Each configuration is run once to compile (the persistent compilation cache on), then ``--rounds`` interleaved
 rounds, the order rotated each round; ``--busy`` adds as many rounds again with a CPU-bound process beside them
-(a second core's worth of work, as a machine doing other things). Reported per round: each configuration's
+(``bodytrack.busy``: a second core's worth of work, as a machine doing other things). Reported per round: each configuration's
 frames/s after the first frame (the summary's ``frames_per_s``), its ratio to ``default``, and the load average.
 
     python benchmarks/perf/refine_cost.py [--rigs stereo ring4] [--frames 40] [--size 320x240] [--rounds 3]
@@ -23,7 +23,6 @@ frames/s after the first frame (the summary's ``frames_per_s``), its ratio to ``
 from __future__ import annotations
 
 import argparse
-import contextlib
 import os
 import pathlib
 import subprocess
@@ -31,60 +30,43 @@ import sys
 import tempfile
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmarks/: the shared modules
+import bodytrack
 import common
 import numpy as np
 
+import jaxmocap.io.sources
+import jaxmocap.tracking.options
+import jaxmocap.tracking.tracker
 from jaxmocap import compilation_cache
-from jaxmocap.io.sources import SequenceSource
 from jaxmocap.synth import generate as synth
-from jaxmocap.tracking.options import TrackOptions
-from jaxmocap.tracking.tracker import Tracker
-
-
-@contextlib.contextmanager
-def busy_process():
-    """A CPU-bound child process for the duration (a second core's worth of other work)."""
-    proc = subprocess.Popen([sys.executable, "-c", "while True: pass"])
-    try:
-        yield
-    finally:
-        proc.kill()
-        proc.wait()
 
 
 def configurations(against: str | None):
     """``{name: run(seq, out) -> frames/s}`` of the compared trackers."""
 
-    def ours(**options):
+    def tracker(sources, options_mod, tracker_mod, **options):
         def run(seq, out):
-            src = SequenceSource(seq, recording=True)
+            src = sources.SequenceSource(seq, recording=True)
             try:
-                opts = TrackOptions(overwrite=True, **options)
-                return float(Tracker(src, out, opts, quiet=True).run()["frames_per_s"])
+                opts = options_mod.TrackOptions(overwrite=True, **options)
+                return float(tracker_mod.Tracker(src, out, opts, quiet=True).run()["frames_per_s"])
             finally:
                 src.close()
 
         return run
 
-    out = {"default": ours(), "no depth": ours(refine_depth=0.0)}
+    ours = (jaxmocap.io.sources, jaxmocap.tracking.options, jaxmocap.tracking.tracker)
+    out = {"default": tracker(*ours), "no depth": tracker(*ours, refine_depth=0.0)}
     if against:
         common.package_at(against, "tracking.tracker")
-        rev_tracker = sys.modules["jaxmocap_at_rev.tracking.tracker"]
-        rev_options = sys.modules["jaxmocap_at_rev.tracking.options"]
-        rev_sources = sys.modules["jaxmocap_at_rev.io.sources"]
-
-        def theirs(seq, out_dir):
-            src = rev_sources.SequenceSource(seq, recording=True)
-            try:
-                opts = rev_options.TrackOptions(overwrite=True)
-                return float(rev_tracker.Tracker(src, out_dir, opts, quiet=True).run()["frames_per_s"])
-            finally:
-                src.close()
-
+        theirs = (
+            sys.modules[f"jaxmocap_at_rev.{m}"]
+            for m in ("io.sources", "tracking.options", "tracking.tracker")
+        )
         label = subprocess.run(
             ["git", "-C", str(common.ROOT), "rev-parse", "--short", against], capture_output=True, text=True
         ).stdout.strip()
-        out[label or against] = theirs
+        out[label or against] = tracker(*theirs)
     return out
 
 
@@ -119,7 +101,7 @@ def main(argv=None) -> int:
             rows = []
             phases = [("idle", a.rounds)] + ([("busy", a.rounds)] if a.busy else [])
             for phase, rounds in phases:
-                with busy_process() if phase == "busy" else contextlib.nullcontext():
+                with bodytrack.busy(phase == "busy"):
                     for r in range(rounds):
                         order = names[r % len(names) :] + names[: r % len(names)]
                         load = os.getloadavg()[0]

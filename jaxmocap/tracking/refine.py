@@ -34,7 +34,8 @@ maps fix it directly.
 ``refine = "estimate"`` writes ``x*`` (outputs, velocity prediction, track-loss reference) and leaves the particles;
 ``"track"`` also moves every particle by ``x* − x̂`` (kept inside the joint limits), so that the next frame's search
 starts around the refined pose. The fit is traced into the filter's step: one program, no dispatch of its own
-(about 3 ms a frame for ``full25`` on the 2-core CPU). The defaults per input kind:
+(about 3 ms a frame for ``full25`` on the 2-core CPU; the depth term about 10 ms more with a stereo pair,
+``benchmarks/results/refine_cost.md``). The defaults per input kind:
 :func:`jaxmocap.tracking.options.default_refine`.
 """
 
@@ -165,9 +166,7 @@ class KeypointRefiner:
 
     def fit(self, est, uv, w, measured=None) -> jnp.ndarray:
         """The fit from the estimate ``est`` (with the depth targets ``measured = (z, wz)`` when given)."""
-        if measured is None:
-            return ik.fit_pose_2d(self.model, self.rig, uv, w, est, prior_weight=self.prior)
-        z, wz = measured
+        z, wz = (None, None) if measured is None else measured
         return ik.fit_pose_2d(
             self.model, self.rig, uv, w, est, prior_weight=self.prior, depth=z, depth_weights=wz
         )
@@ -195,11 +194,11 @@ class KeypointRefiner:
                 px, zc = camera.project_with_depth(self.rig, X)
                 r = px - uv
                 rho = gm(jnp.sum(r * r, axis=-1) / (self.robust_px * self.robust_px), i)
-                if measured is None:
-                    return self.fit(est, uv, w * rho).astype(est.dtype)
-                z, wz = measured
-                rho_z = gm(((zc - z) / REFINE_ROBUST_DEPTH) ** 2, i)
-                return self.fit(est, uv, w * rho, (z, wz * rho_z)).astype(est.dtype)
+                reweighted = None
+                if measured is not None:
+                    z, wz = measured
+                    reweighted = (z, wz * gm(((zc - z) / REFINE_ROBUST_DEPTH) ** 2, i))
+                return self.fit(est, uv, w * rho, reweighted).astype(est.dtype)
 
             refined = jax.lax.fori_loop(0, 2, one_pass, est)
         # a frame without usable detections (or a failed fit) keeps the filter's own estimate
