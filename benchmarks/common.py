@@ -145,3 +145,28 @@ def package_at(rev: str, module: str):
         return importlib.import_module(f"jaxmocap_at_rev.{module}")
     finally:
         sys.path.remove(str(root))
+
+
+def track_options(items) -> dict:
+    """``["velocity=0.8", "cues=foreground,keypoints:8"]`` → ``{"velocity": 0.8, "cues": "foreground,…"}``: fields
+    of :class:`jaxmocap.tracking.options.TrackOptions` with their values converted to the field's type
+    (:func:`~jaxmocap.tracking.options.option_types`); ``seed`` and ``overwrite`` are the scripts' own."""
+    from jaxmocap.tracking.options import option_types
+
+    types, out = option_types(), {}
+    for item in items or ():
+        name, eq, value = item.partition("=")
+        if not eq or name not in types or name in ("seed", "overwrite"):
+            raise ValueError(
+                f"{item!r}: expected FIELD=VALUE with a field of TrackOptions but seed/overwrite"
+            )
+        kind = types[name]
+        if kind is bool:
+            out[name] = value.lower() in ("1", "true", "yes")
+        elif kind in (int, float):
+            out[name] = kind(value)
+        elif kind == "particles":
+            out[name] = int(value)
+        else:
+            out[name] = value
+    return out

@@ -569,7 +569,7 @@ def _add_tracking_commands(sub) -> None:
         ),
         ("--diffusion-scale", float, "factor on the per-DOF diffusion (default 1)"),
         ("--survival-target", float, "annealing survival rate alpha (default 0.5)"),
-        ("--samples", int, "silhouette samples per view of the coverage cue (default 128)"),
+        ("--samples", int, "silhouette samples per view of the coverage cue (default 64)"),
         ("--loss-ratio", float, "lost when the best energy exceeds this times its reference (default 2.5)"),
         ("--loss-frames", int, "... for this many frames in a row (default 3)"),
         ("--loss-window", int, "frames after the initialisation that set the reference energy (default 5)"),

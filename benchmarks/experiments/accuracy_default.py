@@ -97,24 +97,25 @@ GOAL_FPS = 10.0
 #: what the tables show (written for the measured tables: ``python benchmarks/experiments/accuracy_default.py
 #: --seeds 3``, 2026-11-28 22:13 UTC)
 READING = (
-    "Reading (written for the run of 2026-11-28 22:13 UTC, 3 seeds, the defaults: the filter's estimate refined on "
-    "each frame's detections and the particles moved with it, `jaxmocap.tracking.refine`, prior weight 1 with four "
-    "cameras and 30 with the stereo pair, whose refinement also reads the depth maps at the trunk's and the limbs' "
-    "joints (sigma_d 5 cm); the keypoints cue at weight 32, the root's angles in the velocity prediction): both "
-    "goals hold. Stereo: 52.7 mm over the 15 joints (50.9 mm mean, 31.7 mm median over the 14) against 114.4 mm "
-    "without the depth term in the same code (106.4 mm in the previous version of this file) and 858.8 mm (250.6 "
-    "mm) for the triangulation (at f = 256 px a 0.30 m baseline about 4 m from the subject turns one pixel of "
-    "disparity into about 0.2 m of depth: the detections leave a joint's distance along the rays nearly free, the "
-    "depth maps fix it); every clip 23.9-73.2 mm, the crouch and the walk the worst; the wrists and ankles still "
-    "have long tails (95th percentiles 137-337 mm: a limb put on the wrong side of the body along the rays for a "
-    "few frames), at 12.6 frames/s. Four cameras: unchanged (the depth term is off by default with three or more "
-    "views: it made them worse, 33.0 mm over 17 of the 18 runs), 28.7 mm over the 15 joints, 28.4 mm mean (25.3 mm median) over the 14 "
-    "against 43.2 mm (35.0 mm) for the triangulation of the same detections, below it on every clip and every "
-    "joint, at 8.1 frames/s. No run started more than 0.5 m off: the first pose is the model fitted to the "
-    "detections' reprojection, with the depth maps deciding along the rays (`jaxmocap.tracking.init.keypoint_pose`). "
-    "Speed: this run had the machine to itself (load average 1.5-2.0), and the machine ran this code about half as "
-    "fast as the one that gave the previous version of this file its 25.4 and 16.0 frames/s; side by side in one "
-    "process the depth term costs about 10 % of the stereo rate (`benchmarks/results/refine_cost.md`)."
+    "Reading (written for the runs of 2026-11-29 00:00-00:40 UTC, 3 seeds, the defaults: the filter's estimate "
+    "refined on each frame's detections and the particles moved with it, `jaxmocap.tracking.refine`, prior weight 1 "
+    "with four cameras and 30 with the stereo pair, whose refinement also reads the depth maps at the trunk's and "
+    "the limbs' joints (sigma_d 5 cm); the keypoints cue at weight 32, the root's angles in the velocity "
+    "prediction; 64 silhouette samples per view for the coverage cue, `jaxmocap.tracking.features.COVERAGE_SAMPLES`, "
+    "128 before): both goals hold on both rigs. Stereo: 52.2 mm over the 15 joints (50.3 mm mean, 30.9 mm median "
+    "over the 14; 52.7 mm with 128 samples) against 858.8 mm (250.6 mm) for the triangulation (at f = 256 px a "
+    "0.30 m baseline about 4 m from the subject turns one pixel of disparity into about 0.2 m of depth: the "
+    "detections leave a joint's distance along the rays nearly free, the depth maps fix it); every clip "
+    "23.7-74.9 mm, the crouch and the walk the worst; the wrists and ankles still have long tails (a limb put on "
+    "the wrong side of the body along the rays for a few frames), at 16.8 frames/s. Four cameras: 28.7 mm over the "
+    "15 joints as with 128 samples (28.4 mm mean, 25.3 mm median over the 14) against 43.2 mm (35.0 mm) for the "
+    "triangulation of the same detections, below it on every clip and every joint, at 10.3 frames/s (8.1 with 128 "
+    "samples and the foreground read back from the device, in the previous version of this file). No run started "
+    "more than 0.5 m off: the first pose is the model fitted to the detections' reprojection, with the depth maps "
+    "deciding along the rays (`jaxmocap.tracking.init.keypoint_pose`). Speed: absolute rates on a machine whose "
+    "speed moves by tens of percent from hour to hour; the first seven four-camera runs shared it with a test run "
+    "(6.0-9.2 frames/s), the other eleven had it to themselves (9.6-12.3). Side by side in one process, against 128 "
+    "samples and the revision before: `benchmarks/results/track_rate.md`."
 )
 #: a run whose first frame is off by more than this (mean over the joints, mm) did not start on the subject
 BAD_START_MM = 500.0
@@ -403,30 +404,6 @@ def report(
 # ---------------------------------------------------------------------------------------------------------------
 
 
-def parse_set(items) -> dict:
-    """``["velocity=0.8", "cues=foreground,keypoints:8"]`` → ``{"velocity": 0.8, "cues": "foreground,…"}``: fields
-    of :class:`TrackOptions` with their values converted to the field's type (:func:`option_types`)."""
-    from jaxmocap.tracking.options import option_types
-
-    types, out = option_types(), {}
-    for item in items or ():
-        name, eq, value = item.partition("=")
-        if not eq or name not in types or name in ("seed", "overwrite"):
-            raise ValueError(
-                f"--set {item!r}: expected FIELD=VALUE with a field of TrackOptions but seed/overwrite"
-            )
-        kind = types[name]
-        if kind is bool:
-            out[name] = value.lower() in ("1", "true", "yes")
-        elif kind in (int, float):
-            out[name] = kind(value)
-        elif kind == "particles":
-            out[name] = int(value)
-        else:
-            out[name] = value
-    return out
-
-
 def variant_name(options: dict) -> str | None:
     """The folder name of the runs of ``options`` (None: the defaults): ``velocity=0.8,filter=iapf`` made safe."""
     if not options:
@@ -463,7 +440,7 @@ def main(argv=None) -> int:
     if a.seeds < 1:
         ap.error("--seeds must be at least 1")
     try:
-        options = parse_set(a.set)
+        options = common.track_options(a.set)
     except ValueError as e:
         ap.error(str(e))
     variant = variant_name(options)

@@ -121,6 +121,7 @@ class FeatureExtractor:
             )
         self.skin_model = (skin_model or default_skin_model()) if config.skin else None
         self.backgrounds: list | None = None
+        self.last_masks: list | None = None  # the last frame's foreground masks, on the host (``__call__``)
         if config.foreground == "gaussian":
             self.backgrounds = [
                 GaussianBackground(
@@ -216,6 +217,9 @@ class FeatureExtractor:
             if len(depth) != self.num_views:
                 raise MocapInputError(None, f"{len(depth)} depth maps given for {self.num_views} views")
         masks = self.foreground_masks(frames, depth)
+        # kept on the host for callers that need the masks there (reading them back from the device would wait
+        # for whatever the device is computing, e.g. a tracker's step on the frame before)
+        self.last_masks = masks
         maps: dict[str, list] = {}
         if masks is not None:
             maps["foreground"] = masks

@@ -27,11 +27,24 @@ from jaxmocap.likelihood import cues as cues_mod
 from jaxmocap.likelihood.coverage import silhouette_samples
 from jaxmocap.tracking.options import FOREGROUNDS
 
-__all__ = ["ADAPTIVE_SHADOW", "FeatureBuilder", "TrackObservation", "median_background"]
+__all__ = [
+    "ADAPTIVE_SHADOW",
+    "COVERAGE_SAMPLES",
+    "FeatureBuilder",
+    "TrackObservation",
+    "host_masks",
+    "median_background",
+]
 
 #: The shadow test of ``--foreground adaptive``: darker copies of the background colour (0.4 ≤ α < 1) are shadows,
 #: and brighter ones up to α < 1.2 (a global illumination change) background too; chromaticity within 6 σ.
 ADAPTIVE_SHADOW = ShadowParams(alpha_min=0.4, alpha_max=1.2, cd_max=6.0)
+
+#: Silhouette samples per view of the ``coverage`` cue (``--samples``). The cue's cost grows with them (each is
+#: tested against every projected capsule of every particle: with 128, 40 % of the ``full25`` default likelihood on
+#: four cameras); 64 tracked the synthetic clips of ``benchmarks/results/accuracy_default.md`` as well as 128
+#: (four cameras 28.7 mm either way over 18 runs) at a higher rate.
+COVERAGE_SAMPLES = 64
 
 
 class TrackObservation(NamedTuple):
@@ -53,6 +66,17 @@ class _Extractor(FeatureExtractor):
             f = self.config.downsample
             return [downsample_image(m.astype(np.float32), f) >= 0.5 for m in self.given_masks]
         return super().foreground_masks(frames, depth)
+
+
+def host_masks(views, shape) -> np.ndarray:
+    """The foreground maps ``views`` (``V`` arrays ``(H_v, W_v)``: bool, ``[0, 1]`` or uint8 ``round(255·p)``) as the
+    ``(V, H, W)`` bool masks of the observation's ``shape`` (views padded at the bottom/right with background, as
+    :func:`jaxmocap.features.observation.make_observation` pads them), computed on the host: ``p ≥ 0.5``."""
+    masks = np.zeros(tuple(shape), bool)
+    for v, m in enumerate(views):
+        m = np.asarray(m)
+        masks[v, : m.shape[0], : m.shape[1]] = m >= (128 if m.dtype == np.uint8 else 0.5)
+    return masks
 
 
 def _scene_image(path, shape) -> np.ndarray | None:
@@ -131,7 +155,7 @@ class FeatureBuilder:
         cue_names: Sequence[str],
         foreground: str = "auto",
         downsample: int = 1,
-        num_samples: int = 128,
+        num_samples: int = COVERAGE_SAMPLES,
         frames: Sequence[int] | None = None,
     ):
         if foreground not in FOREGROUNDS:
@@ -206,11 +230,7 @@ class FeatureBuilder:
             kp = np.asarray(fd.keypoints, np.float32).copy()
             kp[..., :2] = np.where(kp[..., 2:3] > 0, (kp[..., :2] + 0.5) / f - 0.5, 0.0)
             obs = obs._replace(keypoints2d=jnp.asarray(kp))
-        if obs.has("foreground"):
-            fg = np.asarray(obs.foreground)
-            masks = (fg >= (128 if fg.dtype == np.uint8 else 0.5)) if fg.ndim == 3 else None
-        else:
-            masks = None
+        masks = host_masks(self.extractor.last_masks, obs.foreground.shape) if obs.has("foreground") else None
         if self.coverage:
             V, M = len(fd.images), self.num_samples
             uv = np.zeros((V, M, 2), np.float32)

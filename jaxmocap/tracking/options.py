@@ -274,7 +274,7 @@ class TrackOptions:
     refine_depth: float | None = None
     diffusion_scale: float = 1.0
     survival_target: float = 0.5
-    samples: int = 128
+    samples: int = 64  # jaxmocap.tracking.features.COVERAGE_SAMPLES
     loss_ratio: float = 2.5
     loss_frames: int = 3
     loss_window: int = 5

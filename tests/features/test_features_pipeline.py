@@ -208,3 +208,32 @@ def test_bhattacharyya_distance_matches_opencv():
         assert bhattacharyya_distance(p, q) == pytest.approx(ref, abs=1e-5)
     e = np.eye(4)
     assert bhattacharyya_distance(e[0], e[0]) == 0.0 and bhattacharyya_distance(e[0], e[1]) == 1.0
+
+
+@pytest.mark.parametrize("kind", ["bool", "unit", "uint8"])
+@pytest.mark.parametrize("dtype", ["uint8", "float32", "float16"])
+def test_host_masks_are_the_observation_map_thresholded(kind, dtype):
+    """The tracker's host masks (:func:`jaxmocap.tracking.features.host_masks`, computed without reading the map
+    back from the device) equal the observation's stacked, encoded foreground map read back and thresholded at
+    one half: views of different sizes padded with background; bool, [0, 1] and uint8 ``round(255 p)`` maps
+    (values kept 0.01 away from one half, where a float16 or uint8 encoding may round across it)."""
+    from jaxmocap.tracking.features import host_masks
+
+    sizes = ((W, H), (W - 10, H - 4), (W, H - 2))
+    rig = simple_rig(V=3, sizes=sizes)
+    rng = np.random.default_rng(7)
+    views = []
+    for w, h in sizes:
+        p = rng.random((h, w))
+        p = np.where(np.abs(p - 0.5) < 0.01, 0.2, p)
+        views.append(
+            {"bool": p > 0.5, "unit": p.astype(np.float32), "uint8": np.rint(p * 255).astype(np.uint8)}[kind]
+        )
+    obs = make_observation(rig, foreground=views, dtype=dtype)
+    fg = np.asarray(obs.foreground)
+    read_back = fg >= (128 if fg.dtype == np.uint8 else 0.5)
+    masks = host_masks(views, obs.foreground.shape)
+    assert masks.dtype == bool and masks.shape == (3, H, W)
+    np.testing.assert_array_equal(masks, read_back)
+    assert masks[1, H - 4 :].sum() == 0 and masks[1, :, W - 10 :].sum() == 0  # the padding is background
+    assert 0.4 < masks[0].mean() < 0.6

@@ -1,23 +1,24 @@
-"""What the refinement's depth term costs: frames/s of ``jaxmocap track`` with its defaults, side by side.
+"""Frames/s of ``jaxmocap track`` side by side: its defaults, variants of its options and an earlier revision.
 
 The bundled CMU walk rendered by :func:`jaxmocap.synth.generate.synthesize` (``--frames`` frames at ``--size``,
 seed 0) for each rig of ``--rigs`` (``stereo``: two cameras 0.3 m apart, whose default refinement reads the depth
-maps; ``ring4``: four cameras around, whose default does not), read as a recording
-(:class:`jaxmocap.io.sources.SequenceSource` with ``recording=True``), tracked by
-:class:`jaxmocap.tracking.tracker.Tracker` in one process with:
+maps; ``ring4``: four cameras around), read as a recording (:class:`jaxmocap.io.sources.SequenceSource` with
+``recording=True``), tracked by :class:`jaxmocap.tracking.tracker.Tracker` in one process with:
 
 * ``default`` — this checkout's defaults;
-* ``no depth`` — the same with ``refine_depth=0`` (the refinement on the detections alone);
+* ``LABEL`` (``--variant "LABEL:FIELD=VALUE[;FIELD=VALUE…]"``, repeatable) — the defaults with those fields of
+  :class:`~jaxmocap.tracking.options.TrackOptions` set otherwise, e.g. ``"no depth:refine_depth=0"``;
 * ``REV`` (``--against REV``) — the defaults of the package at git revision ``REV``
-  (:func:`common.package_at`), e.g. the revision before the depth term.
+  (:func:`common.package_at`), e.g. the revision before a change.
 
 Each configuration is run once to compile (the persistent compilation cache on), then ``--rounds`` interleaved
 rounds, the order rotated each round; ``--busy`` adds as many rounds again with a CPU-bound process beside them
-(``bodytrack.busy``: a second core's worth of work, as a machine doing other things). Reported per round: each configuration's
-frames/s after the first frame (the summary's ``frames_per_s``), its ratio to ``default``, and the load average.
+(``bodytrack.busy``: a second core's worth of work, as a machine doing other things). Reported per round: each
+configuration's frames/s after the first frame (the summary's ``frames_per_s``), its ratio to ``default``, and
+the load average.
 
-    python benchmarks/perf/refine_cost.py [--rigs stereo ring4] [--frames 40] [--size 320x240] [--rounds 3]
-        [--busy] [--against REV] [--out benchmarks/results/refine_cost.md]
+    python benchmarks/perf/track_rate.py [--rigs stereo ring4] [--frames 40] [--size 320x240] [--rounds 3]
+        [--busy] [--variant "no depth:refine_depth=0" …] [--against REV] [--title T] [--out FILE.md]
 """
 
 from __future__ import annotations
@@ -41,8 +42,19 @@ from jaxmocap import compilation_cache
 from jaxmocap.synth import generate as synth
 
 
-def configurations(against: str | None):
-    """``{name: run(seq, out) -> frames/s}`` of the compared trackers."""
+def parse_variant(text: str) -> tuple[str, dict]:
+    """``"LABEL:FIELD=VALUE[;FIELD=VALUE…]"`` → ``(LABEL, {field: value})`` (:func:`common.track_options`)."""
+    label, sep, fields = text.partition(":")
+    if not sep or not label.strip() or not fields.strip():
+        raise SystemExit(f"--variant {text!r}: expected LABEL:FIELD=VALUE[;FIELD=VALUE…]")
+    try:
+        return label.strip(), common.track_options(f.strip() for f in fields.split(";"))
+    except ValueError as e:
+        raise SystemExit(f"--variant {text!r}: {e}") from None
+
+
+def configurations(against: str | None, variants=()):
+    """``{name: run(seq, out) -> frames/s}`` of the compared trackers (``variants``: ``(label, options)``)."""
 
     def tracker(sources, options_mod, tracker_mod, **options):
         def run(seq, out):
@@ -56,7 +68,9 @@ def configurations(against: str | None):
         return run
 
     ours = (jaxmocap.io.sources, jaxmocap.tracking.options, jaxmocap.tracking.tracker)
-    out = {"default": tracker(*ours), "no depth": tracker(*ours, refine_depth=0.0)}
+    out = {"default": tracker(*ours)}
+    for label, options in variants:
+        out[label] = tracker(*ours, **options)
     if against:
         common.package_at(against, "tracking.tracker")
         theirs = (
@@ -70,10 +84,11 @@ def configurations(against: str | None):
     return out
 
 
-def table_row(label: str, load: str, fps: dict, ratio: dict, bold: bool = False) -> str:
-    """One row of a rig's table: frames/s of every configuration, then each ratio to ``default``."""
+def table_row(label: str, load: str, names, fps: dict, ratio: dict, bold: bool = False) -> str:
+    """One row of a rig's table: frames/s of every configuration of ``names``, then each ratio to ``default``
+    (in the columns' order, whatever order the round ran them in)."""
     b = "**" if bold else ""
-    cells = [f"{b}{v:.1f}{b}" for v in fps.values()] + [f"{b}{v:.3f}{b}" for v in ratio.values()]
+    cells = [f"{b}{fps[n]:.1f}{b}" for n in names] + [f"{b}{ratio[n]:.3f}{b}" for n in names[1:]]
     return f"| {label} | {load} | " + " | ".join(cells) + " |"
 
 
@@ -84,11 +99,20 @@ def main(argv=None) -> int:
     ap.add_argument("--size", default="320x240")
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--busy", action="store_true", help="as many rounds again beside a CPU-bound process")
+    ap.add_argument(
+        "--variant",
+        action="append",
+        default=[],
+        metavar="LABEL:FIELD=VALUE;…",
+        help="also the defaults with these TrackOptions fields set otherwise (repeatable)",
+    )
     ap.add_argument("--against", metavar="REV", help="also the defaults of the package at git revision REV")
+    ap.add_argument("--title", default="frames/s side by side", help="the result's heading")
     ap.add_argument("--out", default=None, help="write the table here (default: print only)")
     a = ap.parse_args(argv)
     compilation_cache.enable()
-    configs = configurations(a.against)
+    variants = [parse_variant(v) for v in a.variant]
+    configs = configurations(a.against, variants)
     names = list(configs)
     lines = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -124,23 +148,27 @@ def main(argv=None) -> int:
             ]
             for phase, r, load, fps in rows:
                 ratio = {n: fps[n] / fps["default"] for n in names[1:]}
-                lines.append(table_row(f"{phase} {r}", f"{load:.1f}", fps, ratio))
+                lines.append(table_row(f"{phase} {r}", f"{load:.1f}", names, fps, ratio))
             for phase, _ in phases:
                 sel = [fps for p, _, _, fps in rows if p == phase]
                 med = {n: float(np.median([f[n] for f in sel])) for n in names}
                 ratio = {n: float(np.median([f[n] / f["default"] for f in sel])) for n in names[1:]}
-                lines.append(table_row(f"**{phase}, median**", "", med, ratio, bold=True))
+                lines.append(table_row(f"**{phase}, median**", "", names, med, ratio, bold=True))
             lines.append("")
     cmd = f"python {common.script(__file__)} " + " ".join(sys.argv[1:] if argv is None else argv)
     text = "\n".join(
         [
-            "# The refinement's depth term: frames/s side by side\n",
+            f"# `jaxmocap track`: {a.title}\n",
             f"Reproduce: `{cmd}` ({common.stamp()}, {common.machine_line()})\n",
             f"The bundled walk, {a.frames} frames at {a.size}, read as a recording; `jaxmocap track`'s defaults "
-            "(`default`), the same without the depth term (`no depth`: `refine_depth=0`)"
+            "(`default`)"
+            + "".join(
+                f", `{label}` (" + ", ".join(f"`{k}={v}`" for k, v in options.items()) + ")"
+                for label, options in variants
+            )
             + (f", and the defaults of revision `{names[-1]}` (`--against {a.against}`)" if a.against else "")
             + "; frames/s after the first frame, interleaved rounds in one process (module docstring of "
-            "`benchmarks/perf/refine_cost.py`). Only the stereo pair's defaults read the depth maps.\n",
+            "`benchmarks/perf/track_rate.py`).\n",
             *lines,
         ]
     )
