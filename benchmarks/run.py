@@ -257,7 +257,7 @@ SCRIPTS: dict[str, Script] = {
         "Frames/s of the defaults (64 coverage samples, masks kept on the host) against 128 samples and the "
         "revision before",
         "perf/track_rate.py",
-        "--rounds 3 --busy --variant 'samples 128:samples=128' --against d2b18a7 --title \"64 coverage samples "
+        "--frames 60 --rounds 5 --busy --variant 'samples 128:samples=128' --against d2b18a7 --title \"64 coverage samples "
         'and the masks kept on the host" --out benchmarks/results/track_rate.md',
         writes=("track_rate.md",),
         slow=True,

@@ -20,7 +20,9 @@ subject's detections (confidence > 0.3) of each camera.
 held-out camera; the baseline triangulates the same three cameras' detections of the subject (linear DLT, each
 view weighed by its detection confidence, views under 0.3 left out: Pose2Sim's weighting without its
 reprojection-error view rejection) and projects them the same way. Both are compared with the held-out camera's
-own detections (confidence > 0.3), per joint, in full-size pixels; written to ``results/pose2sim_loo.md``. Usage::
+own detections (confidence > 0.3), per joint, in full-size pixels; so is the run's body model fitted on each frame
+to the three cameras' detections alone (:func:`skeleton_fit`: what the skeleton can do with them at best); written to
+``results/pose2sim_loo.md``. Usage::
 
     .venv/bin/python benchmarks/experiments/pose2sim_track.py --out /tmp/p2s --report   # 4 cameras and the pair
     .venv/bin/python benchmarks/experiments/pose2sim_track.py --out /tmp/p2s_loo --leave-one-out
@@ -49,11 +51,13 @@ from scenes import P2S_TRC as TRC
 from scenes import pose2sim_project as make_project
 
 import jaxmocap
-from jaxmocap.geometry import camera
+from jaxmocap.fit.ik import fit_pose_2d
+from jaxmocap.geometry import body, camera
 from jaxmocap.geometry.body import EVAL_JOINTS
 from jaxmocap.io import calibration
 from jaxmocap.io.keypoints import KEYPOINT_INDEX
 from jaxmocap.io.pose2sim import JOINT_OF_TRC, Pose2SimSource, open_project, reference_joints
+from jaxmocap.tracking.init import KEYPOINT_SIGMA_PX
 from jaxmocap.tracking.smoothing import butterworth, fill_gaps, parse_smooth
 
 #: the tracker's default cues for such a folder (the keypoints cue at its default weight, 32)
@@ -191,6 +195,34 @@ def triangulated(rig_full: camera.Rig, kp_full: np.ndarray, cams) -> np.ndarray:
     return np.asarray(X, np.float64)
 
 
+def skeleton_fit(
+    rig_full: camera.Rig, kp_full: np.ndarray, cams, states: np.ndarray, dims: dict
+) -> np.ndarray:
+    """``(T, 15, 3)``: the run's body model (``full25`` with the run's dimensions ``dims``) fitted on each frame to the
+    detections of cameras ``cams`` alone (:func:`jaxmocap.fit.ik.fit_pose_2d` from the tracked state ``states[t]``,
+    prior weight 1, each detection of confidence > 0.3 weighed by its confidence over
+    :data:`~jaxmocap.tracking.init.KEYPOINT_SIGMA_PX`² in full-size pixels): what the skeleton itself can do with
+    the three cameras' detections, without images, filter or smoothing."""
+    import jax
+
+    model = body.build("full25", dims)
+    names = list(model.joint_names)
+    pairs = [(names.index(j), k) for j, k in KEYPOINT_INDEX.items()]
+    jidx, kidx = np.array([p for p, _ in pairs]), np.array([k for _, k in pairs])
+    sub = camera.select(rig_full, list(cams)).to_jax(jnp.float32)
+    fit = jax.jit(lambda uv, w, x0: fit_pose_2d(model, sub, uv, w, x0, prior_weight=1.0))
+    fitted = []
+    for t in range(states.shape[0]):
+        det = kp_full[t][list(cams)][:, kidx]  # (V', M, 3)
+        uv = np.zeros((len(cams), len(names), 2), np.float32)
+        w = np.zeros((len(cams), len(names)), np.float32)
+        uv[:, jidx] = det[..., :2]
+        w[:, jidx] = np.where(det[..., 2] > 0.3, det[..., 2], 0.0) / KEYPOINT_SIGMA_PX**2
+        fitted.append(fit(jnp.asarray(uv), jnp.asarray(w), jnp.asarray(states[t], jnp.float32)))
+    X = jax.vmap(lambda x: body.joint_positions(model, x))(jnp.stack(fitted))
+    return np.asarray(X, np.float64)
+
+
 def smoothed(points: np.ndarray, fps: float, smooth: str) -> np.ndarray:
     """``points (T, 15, 3)`` through the exported track's filter (``smooth``, the ``--smooth`` spelling: the same
     zero-phase Butterworth low-pass, :func:`jaxmocap.tracking.smoothing.butterworth`) coordinate by coordinate,
@@ -238,11 +270,13 @@ def leave_one_out(out: pathlib.Path, a) -> list[dict]:
         e_track = held_out_errors(rig, joints, kp, held)
         tri = triangulated(rig, kp_base[idx], cams)
         e_tri = held_out_errors(rig, tri, kp, held)
+        states = np.load(out / f"without{held + 1}" / "run" / "poses.npz")["state"]
+        e_fit = held_out_errors(rig, skeleton_fit(rig, kp_base[idx], cams, states, r["_dims"]), kp, held)
         # the exported track against the triangulation through the same filter (Pose2Sim filters its own)
         e_track_s = held_out_errors(rig, np.asarray(r.pop("_joints_exported")), kp, held)
         e_tri_s = held_out_errors(rig, smoothed(tri, r["fps"], r["smooth"]), kp, held)
         both = np.isfinite(e_track) & np.isfinite(e_tri)  # the same detections for both
-        both &= np.isfinite(e_track_s) & np.isfinite(e_tri_s)
+        both &= np.isfinite(e_track_s) & np.isfinite(e_tri_s) & np.isfinite(e_fit)
         rows.append(
             {
                 "held_out": names[held],
@@ -256,6 +290,10 @@ def leave_one_out(out: pathlib.Path, a) -> list[dict]:
                 "track_median_px": float(np.median(e_track[both])),
                 "exported_mean_px": float(np.mean(e_track_s[both])),
                 "triangulation_smoothed_mean_px": float(np.mean(e_tri_s[both])),
+                "skeleton_fit_mean_px": float(np.mean(e_fit[both])),
+                "skeleton_fit_px": {
+                    j: float(np.mean(e_fit[:, i][both[:, i]])) for i, j in enumerate(EVAL_JOINTS)
+                },
                 "exported_px": {
                     j: float(np.mean(e_track_s[:, i][both[:, i]])) for i, j in enumerate(EVAL_JOINTS)
                 },
@@ -334,7 +372,23 @@ def loo_report(rows: list[dict], a, argv) -> str:
         ),
         "",
         f"Lower for {wins_s} of {len(rows)} held-out cameras.\n",
-        "## Per joint, px (tracked / triangulated)\n",
+        "## The skeleton alone on the three cameras' detections, px\n",
+        "What the body model can do at best with the detections: on each frame the run's model (its own body "
+        "dimensions) fitted to the three cameras' detections alone by their reprojection error, from the tracked "
+        "pose (`skeleton_fit`: no images, no filter, no smoothing), projected into the held-out camera like the "
+        "others. Where this is above the triangulation, no weighting of the detections against the image cues "
+        "brings the tracked joints below it: the model's joints cannot take the places the detector gives them "
+        "(a rigid torso, fixed limb lengths, joint centres where the detector has surface landmarks).\n",
+        "| held out | skeleton fitted | tracked | triangulated | skeleton lower than triangulation |",
+        "|---|---|---|---|---|",
+        *(
+            f"| {r['held_out']} | {r['skeleton_fit_mean_px']:.1f} | {r['track_mean_px']:.1f} | "
+            f"{r['triangulation_mean_px']:.1f} | "
+            f"{'yes' if r['skeleton_fit_mean_px'] < r['triangulation_mean_px'] else 'no'} |"
+            for r in rows
+        ),
+        "",
+        "## Per joint, px (tracked / triangulated / skeleton fitted)\n",
         "| joint | " + " | ".join(r["held_out"] for r in rows) + " |",
         "|---" * (len(rows) + 1) + "|",
     ]
@@ -344,7 +398,10 @@ def loo_report(rows: list[dict], a, argv) -> str:
             continue
         lines.append(
             f"| {j} | "
-            + " | ".join(f"{r['track_px'][j]:.1f} / {r['triangulation_px'][j]:.1f}" for r in rows)
+            + " | ".join(
+                f"{r['track_px'][j]:.1f} / {r['triangulation_px'][j]:.1f} / {r['skeleton_fit_px'][j]:.1f}"
+                for r in rows
+            )
             + " |"
         )
     text = "\n".join(lines) + "\n"
