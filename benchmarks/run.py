@@ -248,8 +248,8 @@ SCRIPTS: dict[str, Script] = {
     "refine_cost": Script(
         "Frames/s of the defaults with and without the refinement's depth term, and of the revision before it",
         "perf/track_rate.py",
-        "--rounds 3 --busy --variant 'no depth:refine_depth=0' --against e683eeb --title \"the refinement's depth "
-        'term" --out benchmarks/results/refine_cost.md',
+        "--rounds 3 --busy --variant 'no depth:refine_depth=0' --against e683eeb "
+        "--title 'the depth term of the refinement' --out benchmarks/results/refine_cost.md",
         writes=("refine_cost.md",),
         slow=True,
     ),
@@ -257,8 +257,8 @@ SCRIPTS: dict[str, Script] = {
         "Frames/s of the defaults (64 coverage samples, masks kept on the host) against 128 samples and the "
         "revision before",
         "perf/track_rate.py",
-        "--frames 60 --rounds 5 --busy --variant 'samples 128:samples=128' --against d2b18a7 --title \"64 coverage samples "
-        'and the masks kept on the host" --out benchmarks/results/track_rate.md',
+        "--frames 60 --rounds 5 --busy --variant 'samples 128:samples=128' --against d2b18a7 "
+        "--title '64 coverage samples and the masks kept on the host' --out benchmarks/results/track_rate.md",
         writes=("track_rate.md",),
         slow=True,
     ),

@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import os
 import pathlib
+import shlex
 import subprocess
 import sys
 import tempfile
@@ -155,7 +156,7 @@ def main(argv=None) -> int:
                 ratio = {n: float(np.median([f[n] / f["default"] for f in sel])) for n in names[1:]}
                 lines.append(table_row(f"**{phase}, median**", "", names, med, ratio, bold=True))
             lines.append("")
-    cmd = f"python {common.script(__file__)} " + " ".join(sys.argv[1:] if argv is None else argv)
+    cmd = f"python {common.script(__file__)} " + shlex.join(sys.argv[1:] if argv is None else argv)
     text = "\n".join(
         [
             f"# `jaxmocap track`: {a.title}\n",
