@@ -409,20 +409,33 @@ def _solve(model, targets, weights, x0, prior_weight, free, rest, tol, maxiter) 
 
 
 def _residual_2d(u, model, rig, uv, w_sqrt, prior_sqrt, u0):
-    x = to_state(model, u)
-    X, _ = joints_and_jacobian(model, x)
+    X, _ = joints_and_jacobian(model, to_state(model, u))
+    return _reprojection_residual(X, u, rig, uv, w_sqrt, prior_sqrt, u0)
+
+
+def _reprojection_residual(X, u, rig, uv, w_sqrt, prior_sqrt, u0):
+    """:func:`_residual_2d` at the joints ``X (J, 3)`` of ``u``: the weighted pixel misfits, then the prior's."""
     r = w_sqrt[..., None] * (camera.project(rig, X) - uv)  # (V, J, 2) pixels
     return jnp.concatenate([r.ravel(), prior_sqrt * (u - u0)])
 
 
-def _residual_2d_jac(u, model, rig, uv, w_sqrt, prior_sqrt, u0):
+def _joints_and_jacobian_u(model, u):
+    """The joints ``X (J, 3)`` of the solver's coordinates ``u`` and their Jacobian ``∂X/∂u (J, 3, D)``."""
     bounded, c, h = _bounds(model)
-    x = to_state(model, u)
-    dx_du = jnp.where(bounded, h * jnp.cos(u), 1.0)
-    X, J = joints_and_jacobian(model, x)  # (J, 3), (J, 3, D)
+    X, J = joints_and_jacobian(model, to_state(model, u))  # (J, 3), (J, 3, D)
+    return X, J * jnp.where(bounded, h * jnp.cos(u), 1.0)
+
+
+def _residual_2d_jac(u, model, rig, uv, w_sqrt, prior_sqrt, u0):
+    X, Ju = _joints_and_jacobian_u(model, u)
+    return _reprojection_jac(X, Ju, rig, w_sqrt, prior_sqrt)
+
+
+def _reprojection_jac(X, Ju, rig, w_sqrt, prior_sqrt):
+    """Rows of :func:`_residual_2d_jac` at the joints ``X (J, 3)`` with ``Ju = ∂X/∂u (J, 3, D)``."""
     dpi = jax.vmap(jax.jacfwd(lambda p: camera.project(rig, p[None])[:, 0]))(X)  # (J, V, 2, 3)
-    Jr = jnp.einsum("jvab,jbd->vjad", dpi, J * dx_du) * w_sqrt[..., None, None]  # (V, J, 2, D)
-    return jnp.concatenate([Jr.reshape(-1, u.shape[0]), jnp.diag(prior_sqrt)])
+    Jr = jnp.einsum("jvab,jbd->vjad", dpi, Ju) * w_sqrt[..., None, None]  # (V, J, 2, D)
+    return jnp.concatenate([Jr.reshape(-1, Ju.shape[-1]), jnp.diag(prior_sqrt)])
 
 
 def fit_pose_2d(
@@ -499,21 +512,20 @@ def _solve_2d(model, rig, uv, weights, x0, prior_weight, tol, maxiter, measured=
 
 
 def _residual_2d_depth(u, model, rig, uv, w_sqrt, prior_sqrt, u0, z, wz_sqrt):
-    """:func:`_residual_2d` and the weighted camera depths' misfits ``√ω_vj (z_v(f_j(x)) − d_vj)`` (m)."""
+    """:func:`_residual_2d` and the weighted camera depths' misfits ``√ω_vj (z_v(f_j(x)) − d_vj)`` (m), from one
+    forward kinematics."""
     X, _ = joints_and_jacobian(model, to_state(model, u))
     _, zc = camera.project_with_depth(rig, X)  # (V, J)
     rz = wz_sqrt * (zc - z)
-    return jnp.concatenate([_residual_2d(u, model, rig, uv, w_sqrt, prior_sqrt, u0), rz.ravel()])
+    return jnp.concatenate([_reprojection_residual(X, u, rig, uv, w_sqrt, prior_sqrt, u0), rz.ravel()])
 
 
 def _residual_2d_depth_jac(u, model, rig, uv, w_sqrt, prior_sqrt, u0, z, wz_sqrt):
-    """Rows of :func:`_residual_2d_jac`, then the depths': ``∂z_v/∂X`` is camera ``v``'s third rotation row."""
-    bounded, c, h = _bounds(model)
-    x = to_state(model, u)
-    _, J = joints_and_jacobian(model, x)
-    Ju = J * jnp.where(bounded, h * jnp.cos(u), 1.0)  # (J, 3, D)
+    """Rows of :func:`_residual_2d_jac`, then the depths': ``∂z_v/∂X`` is camera ``v``'s third rotation row (one
+    kinematic Jacobian for both)."""
+    X, Ju = _joints_and_jacobian_u(model, u)
     Jz = jnp.einsum("vb,jbd->vjd", rig.R[:, 2, :].astype(Ju.dtype), Ju) * wz_sqrt[..., None]  # (V, J, D)
-    top = _residual_2d_jac(u, model, rig, uv, w_sqrt, prior_sqrt, u0)
+    top = _reprojection_jac(X, Ju, rig, w_sqrt, prior_sqrt)
     return jnp.concatenate([top, Jz.reshape(-1, u.shape[0])])
 
 
