@@ -262,6 +262,14 @@ SCRIPTS: dict[str, Script] = {
         writes=("track_rate.md",),
         slow=True,
     ),
+    "track_rate_full32": Script(
+        "Frames/s of the full32 body (spine and shoulder girdles) beside the full25 default",
+        "perf/track_rate.py",
+        "--frames 60 --rounds 3 --busy --variant full32:model=full32 "
+        "--title 'the full32 body beside the full25 default' --out benchmarks/results/track_rate_full32.md",
+        writes=("track_rate_full32.md",),
+        slow=True,
+    ),
     "run_rate": Script(
         "Whole-run frames/s of a 3000-frame track against its step rate (the cost of the outputs)",
         "perf/run_rate.py",
@@ -416,7 +424,7 @@ SCRIPTS: dict[str, Script] = {
     "pose2sim_loo": Script(
         "Pose2Sim demo recording, leave one camera out: tracked from three, against their triangulation",
         "experiments/pose2sim_track.py",
-        "--out /tmp/p2s_loo --leave-one-out",
+        "--out /tmp/p2s_loo --leave-one-out --model full32",
         writes=("pose2sim_loo.md",),
         env="JAX_PLATFORMS=cpu",
     ),

@@ -2,7 +2,7 @@
 importing JAX: the command line builds its parser from them; :mod:`jaxmocap.filters.factory`,
 :mod:`jaxmocap.tracking.options` and the synthesis wing use them."""
 
-MODELS = ("upper9", "upper14", "full25", "parsec31")
+MODELS = ("upper9", "upper14", "full25", "full32", "parsec31")
 FILTERS = (
     "sir",
     "icondensation",

@@ -51,6 +51,7 @@ from scenes import P2S_TRC as TRC
 from scenes import pose2sim_project as make_project
 
 import jaxmocap
+from jaxmocap.choices import MODELS
 from jaxmocap.fit.ik import fit_pose_2d
 from jaxmocap.geometry import body, camera
 from jaxmocap.geometry.body import EVAL_JOINTS
@@ -124,6 +125,7 @@ def track(out: pathlib.Path, cams, a) -> dict:
         cues=a.cues,
         seed=a.seed,
         frames=a.frames,
+        model=a.model,
         **({} if a.refine is None else {"refine": a.refine}),
         **({} if a.refine_prior is None else {"refine_prior": a.refine_prior}),
     )
@@ -196,16 +198,21 @@ def triangulated(rig_full: camera.Rig, kp_full: np.ndarray, cams) -> np.ndarray:
 
 
 def skeleton_fit(
-    rig_full: camera.Rig, kp_full: np.ndarray, cams, states: np.ndarray, dims: dict
+    rig_full: camera.Rig,
+    kp_full: np.ndarray,
+    cams,
+    states: np.ndarray,
+    dims: dict,
+    model_name: str = "full25",
 ) -> np.ndarray:
-    """``(T, 15, 3)``: the run's body model (``full25`` with the run's dimensions ``dims``) fitted on each frame to the
+    """``(T, 15, 3)``: the run's body model (preset ``model_name`` with the run's dimensions ``dims``) fitted on each frame to the
     detections of cameras ``cams`` alone (:func:`jaxmocap.fit.ik.fit_pose_2d` from the tracked state ``states[t]``,
     prior weight 1, each detection of confidence > 0.3 weighed by its confidence over
     :data:`~jaxmocap.tracking.init.KEYPOINT_SIGMA_PX`² in full-size pixels): what the skeleton itself can do with
     the three cameras' detections, without images, filter or smoothing."""
     import jax
 
-    model = body.build("full25", dims)
+    model = body.build(model_name, dims)
     names = list(model.joint_names)
     pairs = [(names.index(j), k) for j, k in KEYPOINT_INDEX.items()]
     jidx, kidx = np.array([p for p, _ in pairs]), np.array([k for _, k in pairs])
@@ -271,7 +278,9 @@ def leave_one_out(out: pathlib.Path, a) -> list[dict]:
         tri = triangulated(rig, kp_base[idx], cams)
         e_tri = held_out_errors(rig, tri, kp, held)
         states = np.load(out / f"without{held + 1}" / "run" / "poses.npz")["state"]
-        e_fit = held_out_errors(rig, skeleton_fit(rig, kp_base[idx], cams, states, r["_dims"]), kp, held)
+        e_fit = held_out_errors(
+            rig, skeleton_fit(rig, kp_base[idx], cams, states, r["_dims"], a.model), kp, held
+        )
         # the exported track against the triangulation through the same filter (Pose2Sim filters its own)
         e_track_s = held_out_errors(rig, np.asarray(r.pop("_joints_exported")), kp, held)
         e_tri_s = held_out_errors(rig, smoothed(tri, r["fps"], r["smooth"]), kp, held)
@@ -326,7 +335,7 @@ def loo_report(rows: list[dict], a, argv) -> str:
         "# Pose2Sim demo recording: leave one camera out\n",
         f"Reproduce: `{cmd}` ({common.stamp()}, {common.machine_line()})\n",
         "For each camera in turn, the recording is tracked from the other three (`jaxmocap.track` on a Pose2Sim "
-        f"project of three cameras: APF {a.particles} × {a.layers}, images down-sampled by {a.downsample}, cues "
+        f"project of three cameras: the `{a.model}` body, APF {a.particles} × {a.layers}, images down-sampled by {a.downsample}, cues "
         f"`{a.cues}`, seed {a.seed}, frames {a.frames}), and the tracked joints are projected into the held-out "
         "camera. Baseline: the same three cameras' detections of the subject triangulated (linear DLT weighed by "
         "confidence, detections under 0.3 dropped: Pose2Sim's weighting, without its view rejection) and projected "
@@ -378,7 +387,8 @@ def loo_report(rows: list[dict], a, argv) -> str:
         "pose (`skeleton_fit`: no images, no filter, no smoothing), projected into the held-out camera like the "
         "others. Where this is above the triangulation, no weighting of the detections against the image cues "
         "brings the tracked joints below it: the model's joints cannot take the places the detector gives them "
-        "(a rigid torso, fixed limb lengths, joint centres where the detector has surface landmarks).\n",
+        "(the model's torso and shoulders, fixed limb lengths, joint centres where the detector has surface "
+        "landmarks).\n",
         "| held out | skeleton fitted | tracked | triangulated | skeleton lower than triangulation |",
         "|---|---|---|---|---|",
         *(
@@ -503,6 +513,7 @@ def main(argv=None) -> int:
     ap.add_argument("--particles", type=int, default=300)
     ap.add_argument("--layers", type=int, default=5)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--model", default="full25", choices=MODELS, help="body model (default full25)")
     ap.add_argument("--cues", default=CUES, help=f"cues and weights (default {CUES})")
     ap.add_argument("--refine", help="the tracker's refinement on the detections (default: the library's)")
     ap.add_argument("--refine-prior", type=float, help="its prior weight (default: the library's)")

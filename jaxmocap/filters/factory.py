@@ -41,18 +41,20 @@ HYBRID_MOVE = dict(steps=3, learning_rate=1.0, optimizer="normalised", best_k=5)
 
 
 def partition_groups(model: body_mod.BodyModel) -> tuple[tuple[int, ...], ...]:
-    """DOF groups for partitioned / hierarchical sampling: the root segment's DOFs first, then one group per
-    subtree hanging from the root (head, each arm, each leg), in segment order; empty groups left out."""
+    """DOF groups for partitioned / hierarchical sampling: the trunk's DOFs first
+    (:func:`jaxmocap.geometry.body.trunk_segments`: the root's, with ``full32``'s spine), then one group per branch
+    hanging from the trunk (head, each arm with its girdle, each leg), in segment order; empty groups left out."""
     topo = model.topology
-    top = []  # the child of the root each segment descends from
+    trunk = set(body_mod.trunk_segments(model))
+    top = []  # the branch (its first segment) each segment belongs to; -1 on the trunk
     for s, p in enumerate(topo.parents):
-        if p < 0:
+        if s in trunk:
             top.append(-1)
-        elif topo.parents[p] < 0:
+        elif p in trunk:
             top.append(s)
         else:
             top.append(top[p])
-    groups = [tuple(topo.segment_dofs[0])]
+    groups = [tuple(d for s in sorted(trunk) for d in topo.segment_dofs[s])]
     for c in [s for s in range(len(top)) if top[s] == s]:
         g = tuple(d for s in range(len(top)) if top[s] == c for d in topo.segment_dofs[s])
         if g:

@@ -17,8 +17,8 @@ the unconstrained ``u`` (root translation and angles whose range spans a full tu
 result is therefore inside the limits by construction; the start point is pulled 2 % of the range inside so
 that no angle starts where ``cos u = 0``.
 
-The root is initialised by a weighted Procrustes (Kabsch) fit of the joints rigid with the root (those no
-other DOF moves: root, thorax, shoulders and hips for ``full25``) at the rest pose to their targets; the
+The root is initialised by a weighted Procrustes (Kabsch) fit of the trunk's joints (those no DOF outside the
+trunk moves: root, thorax, shoulders and hips for ``full25``) at the rest pose to their targets; the
 rotation is then split into the model's root angles (``root_rz, root_ry, root_rx`` as ``Rz·Ry·Rx``, or a
 single heading ``*_rz``, recognised by name).
 
@@ -55,6 +55,7 @@ import numpy as np
 from jaxmocap.fit import solvers
 from jaxmocap.geometry import camera, kinematics
 from jaxmocap.geometry.body import EVAL_JOINTS, BodyModel
+from jaxmocap.geometry.body import trunk_segments as body_trunk
 from jaxmocap.io.mocap import matrix_to_euler
 
 _MARGIN = 0.98  # start points are pulled inside this fraction of each bounded range
@@ -170,13 +171,14 @@ def _set_root(model: BodyModel, x: jnp.ndarray, R: jnp.ndarray, t: jnp.ndarray) 
 
 @jax.jit
 def root_init(model: BodyModel, targets: jnp.ndarray, weights: jnp.ndarray | None = None) -> jnp.ndarray:
-    """A start state: the rest pose with the root placed by Procrustes on the joints rigid with the root.
+    """A start state: the rest pose with the root placed by Procrustes on the joints of the trunk.
 
     Args:
       targets: ``(J, 3)`` in ``model.joint_names`` order, NaN = missing; weights: ``(J,)`` (default ones).
 
-    Uses the joints that no DOF but the root's moves (for ``full25``: root, thorax, shoulders, hips) when at
-    least three of them have targets, else every joint with a target.
+    Uses the joints that no DOF outside the trunk (:func:`jaxmocap.geometry.body.trunk_segments`) moves, the trunk
+    at its rest pose (``full25``: root, thorax, shoulders, hips; ``full32``, whose girdles move the shoulders:
+    root, thorax, hips) when at least three of them have targets, else every joint with a target.
     """
     J = len(model.joint_names)
     weights = jnp.ones(J, model.lower.dtype) if weights is None else jnp.asarray(weights)
@@ -185,9 +187,9 @@ def root_init(model: BodyModel, targets: jnp.ndarray, weights: jnp.ndarray | Non
     root_dofs = jnp.asarray(trans + rots, dtype=jnp.int32)
     x_ref = model.rest_pose.at[root_dofs].set(0.0)
     P, jac = joints_and_jacobian(model, x_ref)  # P in the root frame (plus the root offset)
-    # joints rigid with the root: no other DOF moves them (shoulder and hip centres included)
+    # joints of the trunk: no DOF outside it moves them (shoulder and hip centres included)
     others = np.ones(model.num_dofs, dtype=bool)
-    others[trans + rots] = False
+    others[[d for s in body_trunk(model) for d in model.topology.segment_dofs[s]]] = False
     rigid = ~jnp.any(jnp.abs(jac[:, :, others]) > 1e-6, axis=(1, 2))
     w_root = jnp.where(rigid, w, 0.0)
     w_use = jnp.where(jnp.sum(w_root > 0) >= 3, w_root, w)

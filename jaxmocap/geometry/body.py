@@ -23,6 +23,8 @@ Presets:
 * ``upper14`` — Fontmarty et al. (IROS 2007): 6 global DOF, 3 per shoulder, 1 per elbow; head rigid with the torso.
 * ``full25``  — Li & Kulić: root translation 3, root rotation 3, neck 3, shoulders 3+3, elbows 1+1, hips 3+3,
   knees 1+1; every angle limited.
+* ``full32``  — ``full25`` with a 3-DOF spine joint halfway up the torso and a 2-DOF shoulder girdle per side
+  (:func:`full32`).
 * ``parsec31`` — PARSEC bodytrack's 10-cylinder body, in millimetres; the PARSEC wing (subpackage ``parsec``)
   registers it with :func:`register_preset` when it is imported.
 """
@@ -162,6 +164,25 @@ def clip_to_limits(model: BodyModel, x: jnp.ndarray) -> jnp.ndarray:
 def within_limits(model: BodyModel, x: jnp.ndarray) -> jnp.ndarray:
     """``(...)`` bool: all entries inside the limits."""
     return jnp.all((x >= model.lower) & (x <= model.upper), axis=-1)
+
+
+def trunk_segments(model: BodyModel) -> tuple[int, ...]:
+    """The segments of the trunk: the root and every segment on the way from the root to a branching segment (one
+    with two or more children), in segment order. ``full25``: the torso alone; ``full32``: torso and chest (the
+    chest carries the head and both girdles); ``parsec31``: pelvis, spine and thorax. What hangs from the trunk —
+    head, arms with their girdles, legs — are the body's branches (:func:`jaxmocap.filters.factory.partition_groups`)."""
+    parents = model.topology.parents
+    children = [0] * len(parents)
+    for p in parents:
+        if p >= 0:
+            children[p] += 1
+    trunk = set()
+    for s, n in enumerate(children):
+        if n >= 2 or parents[s] < 0:
+            while s >= 0 and s not in trunk:
+                trunk.add(s)
+                s = parents[s]
+    return tuple(sorted(trunk))
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -380,40 +401,106 @@ def _head_shape(b: _Builder, dims):
     return (SHAPE_ELLIPSOID, b.vec(0.0, 0.0, n), b.vec(0.0, 0.0, n + h), r, r), b.vec(0.0, 0.0, n + 0.5 * h)
 
 
+def _full_root_dofs(dims) -> list:
+    """Root translation (its rest height: the pelvis centre of a person standing) and rotation ``Rz·Ry·Rx``."""
+    standing = _dim(dims, "hip_drop") + _dim(dims, "thigh_length") + _dim(dims, "shin_length")
+    return _translation_dofs("root", standing) + [
+        ("root_rz", "R", Z, -2 * math.pi, 2 * math.pi),
+        ("root_ry", "R", Y, -90 * _DEG, 90 * _DEG),
+        ("root_rx", "R", X, -90 * _DEG, 90 * _DEG),
+    ]
+
+
+def _neck_dofs() -> list:
+    return [
+        ("neck_rx", "R", X, -40 * _DEG, 40 * _DEG),
+        ("neck_ry", "R", Y, -50 * _DEG, 60 * _DEG),
+        ("neck_rz", "R", Z, -70 * _DEG, 70 * _DEG),
+    ]
+
+
+def _legs(b: _Builder, dims) -> None:
+    hw, hd = 0.5 * _dim(dims, "hip_width"), _dim(dims, "hip_drop")
+    for side, s in (("left", 1.0), ("right", -1.0)):
+        _leg(b, dims, side, "torso", b.vec(0.0, s * hw, -hd))
+
+
 def full25(dims: Mapping[str, object] | None = None, dtype=jnp.float32) -> BodyModel:
     """Li & Kulić's 25-DOF full body. Root at the pelvis centre; rotation ``Rz·Ry·Rx`` (yaw, pitch, roll)."""
     dims = dims or {}
     b = _Builder(dtype=dtype)
     T = _dim(dims, "torso_length")
-    standing = _dim(dims, "hip_drop") + _dim(dims, "thigh_length") + _dim(dims, "shin_length")
-    root_dofs = _translation_dofs("root", standing) + [
-        ("root_rz", "R", Z, -2 * math.pi, 2 * math.pi),
-        ("root_ry", "R", Y, -90 * _DEG, 90 * _DEG),
-        ("root_rx", "R", X, -90 * _DEG, 90 * _DEG),
-    ]
-    _torso(b, dims, root_dofs, 0.0, T)
+    _torso(b, dims, _full_root_dofs(dims), 0.0, T)
     head_shape, head_centre = _head_shape(b, dims)
-    b.segment(
-        "head",
-        "torso",
-        b.vec(0.0, 0.0, T),
-        [
-            ("neck_rx", "R", X, -40 * _DEG, 40 * _DEG),
-            ("neck_ry", "R", Y, -50 * _DEG, 60 * _DEG),
-            ("neck_rz", "R", Z, -70 * _DEG, 70 * _DEG),
-        ],
-        head_shape,
-    )
+    b.segment("head", "torso", b.vec(0.0, 0.0, T), _neck_dofs(), head_shape)
     b.joint("root", "torso", b.vec(0.0, 0.0, 0.0))
     b.joint("thorax", "torso", b.vec(0.0, 0.0, T))
     b.joint("head", "head", head_centre)
     sw, sd = 0.5 * _dim(dims, "shoulder_width"), _dim(dims, "shoulder_drop")
     for side, s in (("left", 1.0), ("right", -1.0)):
         _arm(b, dims, side, "torso", b.vec(0.0, s * sw, T - sd))
-    hw, hd = 0.5 * _dim(dims, "hip_width"), _dim(dims, "hip_drop")
-    for side, s in (("left", 1.0), ("right", -1.0)):
-        _leg(b, dims, side, "torso", b.vec(0.0, s * hw, -hd))
+    _legs(b, dims)
     return b.build("full25")
+
+
+#: Height of ``full32``'s spine joint above the pelvis centre, as a fraction of the torso length.
+SPINE_HEIGHT = 0.5
+
+
+def full32(dims: Mapping[str, object] | None = None, dtype=jnp.float32) -> BodyModel:
+    """``full25`` with a torso that bends and shoulders that shrug: 32 DOFs.
+
+    The torso of ``full25`` split at :data:`SPINE_HEIGHT` of its length into the pelvis part (``torso``, the root)
+    and ``chest``, joined by a spine joint of 3 DOFs (``spine_rx`` lateral bend ±30°, ``spine_ry`` flexion −30°…45°,
+    ``spine_rz`` twist ±30°), and a shoulder girdle per side: a ``{side}_clavicle`` segment at the base of the neck
+    (no flesh) with elevation ``{side}_clavicle_rx`` and protraction ``{side}_clavicle_rz`` (±20° each) that
+    carries the arm. The same dimensions and joints as ``full25``; at zero spine and girdle angles the joints and
+    the flesh are ``full25``'s (the torso cone cut in two at the same radii). State order: root 6, spine 3, neck 3,
+    left girdle 2, left arm 4, right girdle 2, right arm 4, left leg 4, right leg 4.
+
+    What it is for: a real person's neck keypoint and shoulders move with the shoulder girdle and the thoracic spine,
+    which ``full25``'s rigid torso cannot follow (``benchmarks/results/pose2sim_loo.md``).
+    """
+    dims = dims or {}
+    b = _Builder(dtype=dtype)
+    T = _dim(dims, "torso_length")
+    L = SPINE_HEIGHT * T
+    r0, r1 = _dim(dims, "torso_radius_bottom"), _dim(dims, "torso_radius_top")
+    r_mid = r0 + SPINE_HEIGHT * (r1 - r0)
+    b.segment(
+        "torso",
+        None,
+        b.vec(0.0, 0.0, 0.0),
+        _full_root_dofs(dims),
+        (SHAPE_CONE, b.vec(0.0, 0.0, 0.0), b.vec(0.0, 0.0, L), r0, r_mid),
+    )
+    spine = [
+        ("spine_rx", "R", X, -30 * _DEG, 30 * _DEG),
+        ("spine_ry", "R", Y, -30 * _DEG, 45 * _DEG),
+        ("spine_rz", "R", Z, -30 * _DEG, 30 * _DEG),
+    ]
+    b.segment(
+        "chest",
+        "torso",
+        b.vec(0.0, 0.0, L),
+        spine,
+        (SHAPE_CONE, b.vec(0.0, 0.0, 0.0), b.vec(0.0, 0.0, T - L), r_mid, r1),
+    )
+    head_shape, head_centre = _head_shape(b, dims)
+    b.segment("head", "chest", b.vec(0.0, 0.0, T - L), _neck_dofs(), head_shape)
+    b.joint("root", "torso", b.vec(0.0, 0.0, 0.0))
+    b.joint("thorax", "chest", b.vec(0.0, 0.0, T - L))
+    b.joint("head", "head", head_centre)
+    sw, sd = 0.5 * _dim(dims, "shoulder_width"), _dim(dims, "shoulder_drop")
+    for side, s in (("left", 1.0), ("right", -1.0)):
+        girdle = [
+            (f"{side}_clavicle_rx", "R", X, -20 * _DEG, 20 * _DEG),
+            (f"{side}_clavicle_rz", "R", Z, -20 * _DEG, 20 * _DEG),
+        ]
+        b.segment(f"{side}_clavicle", "chest", b.vec(0.0, 0.0, T - L), girdle)
+        _arm(b, dims, side, f"{side}_clavicle", b.vec(0.0, s * sw, -sd))
+    _legs(b, dims)
+    return b.build("full32")
 
 
 def _upper(dims, dtype, model_name: str, root_dofs, neck_dofs) -> BodyModel:
@@ -451,7 +538,7 @@ def upper14(dims: Mapping[str, object] | None = None, dtype=jnp.float32) -> Body
 
 
 #: The built-in presets (metres): name → ``builder(dims, dtype=...)``.
-PRESETS = {"upper9": upper9, "upper14": upper14, "full25": full25}
+PRESETS = {"upper9": upper9, "upper14": upper14, "full25": full25, "full32": full32}
 
 #: Presets that a wing of the package registers when it is imported: name → the wing's subpackage.
 WING_PRESETS = {"parsec31": "parsec"}
@@ -487,7 +574,7 @@ def preset_names() -> tuple[str, ...]:
 def build(
     name: str, dims: Mapping[str, object] | None = None, dtype=jnp.float32, in_metres: bool = False
 ) -> BodyModel:
-    """Build a preset by name: a built-in one (``upper9``, ``upper14``, ``full25``; metres) or one registered with
+    """Build a preset by name: a built-in one (``upper9``, ``upper14``, ``full25``, ``full32``; metres) or one registered with
     :func:`register_preset` (``parsec31`` once the PARSEC wing is imported; millimetres unless ``in_metres``).
 
     ``in_metres``: the model in metres (the registered metric builder, which takes no ``dtype``); the built-in

@@ -553,6 +553,8 @@ def ground(g: Geometry, obs: Observation, ctx: CueContext) -> jnp.ndarray:
 INTERPENETRATION_PAIRS = (
     ("left_forearm", "torso"),
     ("right_forearm", "torso"),
+    ("left_forearm", "chest"),
+    ("right_forearm", "chest"),
     ("left_forearm", "right_forearm"),
     ("left_shin", "right_shin"),
 )

@@ -88,7 +88,8 @@ def build_model(
 def diffusion_std(model: body_mod.BodyModel, fps: float = 30.0) -> np.ndarray:
     """Per-DOF random-walk standard deviation per frame ``(D,)``, chosen for walking-speed motion at 30 fps and
     scaled by ``30 / fps``: root translation 3 cm, root heading 0.06 rad, root tilt 0.04 rad, neck 0.06 rad,
-    shoulders and hips 0.10 rad, elbows and knees 0.12 rad (other angles 0.08 rad)."""
+    shoulders and hips 0.10 rad, elbows and knees 0.12 rad, the spine and the shoulder girdles (``full32``)
+    0.03 rad (other angles 0.08 rad)."""
     out = np.empty(model.num_dofs, np.float64)
     root = set(model.topology.segment_dofs[0])
     for d, (name, kind) in enumerate(zip(model.dof_names, model.topology.dof_kinds, strict=True)):
@@ -98,6 +99,8 @@ def diffusion_std(model: body_mod.BodyModel, fps: float = 30.0) -> np.ndarray:
             out[d] = 0.06 if name.endswith("rz") else 0.04
         elif "neck" in name or "head" in name:
             out[d] = 0.06
+        elif "spine" in name or "clavicle" in name:
+            out[d] = 0.03
         elif "elbow" in name or "knee" in name:
             out[d] = 0.12
         elif "shoulder" in name or "hip" in name:
@@ -109,7 +112,7 @@ def diffusion_std(model: body_mod.BodyModel, fps: float = 30.0) -> np.ndarray:
 
 def default_particles(model_name: str, filter_name: str) -> int:
     """Particles per layer (annealed filters) or in all (the others: as many likelihood evaluations per frame)."""
-    base = {"upper9": 150, "upper14": 200, "full25": 300, "parsec31": 300}[model_name]
+    base = {"upper9": 150, "upper14": 200, "full25": 300, "full32": 300, "parsec31": 300}[model_name]
     if filter_name in ("sir", "icondensation"):
         return base * default_layers(filter_name)[1]
     if filter_name in PARTITIONED:
@@ -141,10 +144,10 @@ def default_cues(model_name: str, has_depth: bool, has_keypoints: bool) -> tuple
     """``(name, weight)`` of the default cues: silhouette (``foreground``), edges (``edge_distance``), the
     silhouette coverage term (weight 4: with a one-pixel ``d_max`` it balances the foreground cue's preference for a
     model that shrinks into the silhouette; chosen on the demo sequence, see ``benchmarks/results/demo_table.txt``),
-    ``depth`` when the input has depth maps (full body only: Li & Kulić's cue), and the 2D ``keypoints`` when
+    ``depth`` when the input has depth maps (the full bodies only: Li & Kulić's cue), and the 2D ``keypoints`` when
     there are detections, weight :data:`KEYPOINTS_WEIGHT`."""
     out = [("foreground", 1.0), ("edge_distance", 1.0), ("coverage", 4.0)]
-    if has_depth and model_name == "full25":
+    if has_depth and model_name in ("full25", "full32"):
         out.append(("depth", 1.0))
     if has_keypoints:
         out.append(("keypoints", KEYPOINTS_WEIGHT))

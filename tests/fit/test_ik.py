@@ -135,6 +135,17 @@ def test_root_init_for_the_upper_body_presets(name):
     np.testing.assert_allclose(x0[:n_root], x[:n_root], atol=2e-5)
 
 
+def test_root_init_for_full32_uses_the_trunk():
+    """full32's girdles move the shoulders: the root comes from root, thorax and hips (the trunk's joints at its
+    rest pose), exactly when the spine is straight, whatever the girdles and limbs do."""
+    model = body.full32()
+    x = model.rest_pose.at[:6].set(jnp.asarray([0.4, -1.2, 1.0, 2.0, 0.2, -0.3]))
+    for name, v in (("left_clavicle_rx", 0.3), ("right_clavicle_rz", -0.3), ("left_elbow", 1.0)):
+        x = x.at[model.dof_index(name)].set(v)
+    x0 = ik.root_init(model, jax.jit(ik.model_joints)(model, x))
+    np.testing.assert_allclose(x0[:6], x[:6], atol=2e-5)
+
+
 def test_reparametrisation_stays_in_limits():
     model = body.full25()
     u = jnp.linspace(-20, 20, 101)[:, None] * jnp.ones(model.num_dofs)

@@ -56,6 +56,91 @@ def test_root_orientation_turns_the_whole_body():
     np.testing.assert_allclose(J - root, (J0 - root) @ rz.T, atol=1e-6)
 
 
+def _rotation(axis: str, angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return {
+        "x": np.array([[1, 0, 0], [0, c, -s], [0, s, c]]),
+        "y": np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]]),
+        "z": np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]),
+    }[axis]
+
+
+def _full25_state_in_full32(m25, m32, x25):
+    return np.asarray(
+        [x25[m25.dof_index(n)] if n in m25.dof_names else 0.0 for n in m32.dof_names], np.float32
+    )
+
+
+def test_full32_is_full25_with_a_spine_and_shoulder_girdles():
+    """At zero spine and girdle angles full32's joints and flesh are full25's for any other state; its trunk is
+    the pelvis part and the chest, and 32 DOFs in the documented order."""
+    m25, m32 = body.full25(), body.full32()
+    assert m32.num_dofs == 32 and m32.joint_names == body.EVAL_JOINTS
+    added = [n for n in m32.dof_names if n not in m25.dof_names]
+    assert added == ["spine_rx", "spine_ry", "spine_rz"] + [
+        f"{s}_clavicle_r{a}" for s in ("left", "right") for a in "xz"
+    ]
+    assert body.trunk_segments(m32) == (0, 1) and body.trunk_segments(m25) == (0,)
+    rng = np.random.default_rng(0)
+    lo, hi = np.asarray(m25.lower), np.maximum(np.asarray(m25.upper), np.asarray(m25.lower))
+    for _ in range(3):
+        x25 = np.clip(np.asarray(m25.rest_pose) + rng.uniform(-0.4, 0.4, 25), lo, hi).astype(np.float32)
+        x32 = _full25_state_in_full32(m25, m32, x25)
+        np.testing.assert_allclose(
+            body.joint_positions(m32, jnp.asarray(x32)),
+            body.joint_positions(m25, jnp.asarray(x25)),
+            atol=2e-6,
+        )
+    # the torso cone cut in two at the same radii: the same silhouette
+    d = body.DEFAULT_DIMENSIONS
+    T, r0, r1 = d["torso_length"], d["torso_radius_bottom"], d["torso_radius_top"]
+    h = body.SPINE_HEIGHT * T
+    np.testing.assert_allclose(np.asarray(m32.shape_end[:2, 2]), [h, T - h], atol=1e-7)
+    np.testing.assert_allclose(
+        np.asarray(m32.radius_start[:2]), [r0, r0 + body.SPINE_HEIGHT * (r1 - r0)], atol=1e-7
+    )
+    np.testing.assert_allclose(
+        np.asarray(m32.radius_end[:2]), [r0 + body.SPINE_HEIGHT * (r1 - r0), r1], atol=1e-7
+    )
+
+
+_ABOVE_SPINE = (
+    "thorax",
+    "head",
+    *(f"{s}_{j}" for s in ("left", "right") for j in ("shoulder", "elbow", "wrist")),
+)
+
+
+@pytest.mark.parametrize(
+    "dof, axis, centre, carried",
+    [
+        ("spine_rx", "x", "spine", _ABOVE_SPINE),
+        ("spine_ry", "y", "spine", _ABOVE_SPINE),
+        ("spine_rz", "z", "spine", _ABOVE_SPINE),
+        ("left_clavicle_rx", "x", "thorax", ("left_shoulder", "left_elbow", "left_wrist")),
+        ("right_clavicle_rz", "z", "thorax", ("right_shoulder", "right_elbow", "right_wrist")),
+    ],
+)
+def test_full32_spine_and_girdles_rotate_about_their_joints(dof, axis, centre, carried):
+    """Closed form: one spine or girdle angle θ (the root at rest, facing +x) turns the joints it carries about
+    its joint centre by R_axis(θ) (the spine joint at SPINE_HEIGHT of the torso above the pelvis centre, the
+    girdles at the base of the neck) and leaves every other joint where it was."""
+    m = body.full32()
+    theta = -0.25 if dof == "spine_ry" else 0.3
+    x0 = m.rest_pose
+    J0 = dict(zip(m.joint_names, np.asarray(body.joint_positions(m, x0), np.float64), strict=True))
+    x = x0.at[m.dof_index(dof)].set(theta)
+    J = dict(zip(m.joint_names, np.asarray(body.joint_positions(m, x), np.float64), strict=True))
+    spine = J0["root"] + [0.0, 0.0, body.SPINE_HEIGHT * body.DEFAULT_DIMENSIONS["torso_length"]]
+    c = spine if centre == "spine" else J0["thorax"]
+    R = _rotation(axis, theta)
+    for name in m.joint_names:
+        want = c + R @ (J0[name] - c) if name in carried else J0[name]
+        np.testing.assert_allclose(J[name], want, atol=2e-6, err_msg=name)
+        if name in carried and dof != "spine_rz":  # (a twist leaves the joints on its axis in place)
+            assert np.linalg.norm(J[name] - J0[name]) > 0.01, name
+
+
 def test_limits_clip():
     m = body.upper9()
     x = jnp.full((4, m.num_dofs), 1e3)
@@ -103,7 +188,7 @@ def test_body_file_round_trip_and_errors(tmp_path):
         body.load_body(tmp_path / "missing.toml")
 
 
-@pytest.mark.parametrize("name", ["upper9", "upper14", "full25"])
+@pytest.mark.parametrize("name", ["upper9", "upper14", "full25", "full32"])
 def test_shipped_body_files_load(name):
     m = body.load_body(body.default_body_path(name))
     assert m.name == name

@@ -183,7 +183,7 @@ def test_transform_points_runs_and_gather_agree(monkeypatch):
     np.testing.assert_allclose(sliced, ref, atol=1e-5)
 
 
-@pytest.mark.parametrize("name", ["upper9", "full25", "parsec31"])
+@pytest.mark.parametrize("name", ["upper9", "full25", "full32", "parsec31"])
 def test_loop_and_written_out_fk_agree(name):
     """The two forms of segment_poses (loops on the CPU, written out elsewhere) give the same numbers, rest
     rotations (parsec31) and prismatic DOFs included, bit for bit with XLA's default code generation (the one users

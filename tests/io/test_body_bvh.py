@@ -21,7 +21,7 @@ with warnings.catch_warnings():  # PyGLM (under bvhio) warns about its import na
 import pybvh
 
 A = mocap.Y_UP_TO_Z_UP
-MODELS = ("upper9", "upper14", "full25", "parsec31")
+MODELS = ("upper9", "upper14", "full25", "full32", "parsec31")
 
 
 @pytest.fixture(scope="module")

@@ -3,6 +3,7 @@ PROVENANCE.md) tracked with full25 and compared with Pose2Sim's triangulated ref
 
 from __future__ import annotations
 
+import json
 import pathlib
 
 import cv2
@@ -167,16 +168,18 @@ def test_project_folder_source(project):
 
 
 @pytest.mark.slow
-def test_track_real_frames_close_to_reference(project, tmp_path):
+@pytest.mark.parametrize("model", ["full25", "full32"])
+def test_track_real_frames_close_to_reference(project, tmp_path, model):
     """Four frames, four cameras, keypoint + image cues, the project folder as the input of ``jaxmocap.track``
     (body dimensions from the detections, IK initialisation, a median background without the subject filled from
-    the scene images): the tracked joints (head left out: the model's head centre has no keypoint counterpart)
-    stay within 80 mm (mean) of Pose2Sim's triangulation; a wrong axis, scale, camera order or joint mapping
-    gives hundreds."""
+    the scene images), with the default body and with ``full32`` (spine and shoulder girdles): the tracked joints
+    (head left out: the model's head centre has no keypoint counterpart) stay within 80 mm (mean) of Pose2Sim's
+    triangulation; a wrong axis, scale, camera order or joint mapping gives hundreds."""
     import jaxmocap
 
     res = jaxmocap.track(
         input=project,
+        model=model,
         particles=100,
         layers=3,
         cues="foreground,edge_distance,coverage:4,keypoints:4",
@@ -192,3 +195,4 @@ def test_track_real_frames_close_to_reference(project, tmp_path):
     assert np.mean(no_head) < 80.0, np.mean(no_head, axis=0)
     assert np.max(np.mean(no_head, axis=0)) < 200.0
     assert (tmp_path / "run" / "config.toml").is_file()
+    assert json.loads((tmp_path / "run" / "run.json").read_text())["model"] == model

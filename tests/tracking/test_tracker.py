@@ -120,6 +120,18 @@ def test_partition_groups_and_defaults():
         "left_hip_rx",
         "right_hip_rx",
     ]
+    # full32: the spine joins the root in the trunk's group; each girdle goes with its arm
+    m32 = body.full32()
+    g32 = partition_groups(m32)
+    assert [[m32.dof_names[d] for d in g] for g in g32][:3] == [
+        [*(m32.dof_names[:6]), "spine_rx", "spine_ry", "spine_rz"],
+        ["neck_rx", "neck_ry", "neck_rz"],
+        ["left_clavicle_rx", "left_clavicle_rz", *(f"left_shoulder_r{a}" for a in "xyz"), "left_elbow"],
+    ]
+    assert [len(g) for g in g32] == [9, 3, 6, 6, 4, 4]
+    assert sorted(d for g in g32 for d in g) == list(range(m32.num_dofs))
+    s32 = diffusion_std(m32)
+    assert s32[m32.dof_index("spine_ry")] == s32[m32.dof_index("left_clavicle_rz")] == pytest.approx(0.03)
     std = diffusion_std(m, fps=30.0)
     np.testing.assert_allclose(diffusion_std(m, fps=60.0), std / 2, rtol=1e-6)
     assert std[m.dof_index("root_tx")] == pytest.approx(0.03)
