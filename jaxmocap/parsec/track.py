@@ -59,8 +59,12 @@ DEFAULT_LAYERS = 5
 
 def make_loglik(shape: parsec.BodyShape, cams: parsec.Cameras) -> Callable:
     """``loglik(X (N, 31), observation, layer=None) -> (N,)``: the PARSEC log-likelihood (mm), −∞ for the poses
-    bodytrack rejects (intersecting cylinders, returned as −1e10), so that the filter drops them as bodytrack does."""
-    raw = pl.make_loglik_batch(shape, cams)
+    bodytrack rejects (intersecting cylinders, returned as −1e10), so that the filter drops them as bodytrack does.
+
+    The likelihood is one jitted function: the weighted start and the filter step, which both call it on ``(N, 31)``
+    particles, share its trace (tracing the PARSEC likelihood takes about a second of a warm start)."""
+    batch = pl.make_loglik_batch(shape, cams)
+    raw = jax.jit(lambda X, obs: batch(X, obs))
 
     def loglik(X, obs, layer=None):
         ll = raw(X, obs)
