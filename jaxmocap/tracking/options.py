@@ -88,8 +88,8 @@ def build_model(
 def diffusion_std(model: body_mod.BodyModel, fps: float = 30.0) -> np.ndarray:
     """Per-DOF random-walk standard deviation per frame ``(D,)``, chosen for walking-speed motion at 30 fps and
     scaled by ``30 / fps``: root translation 3 cm, root heading 0.06 rad, root tilt 0.04 rad, neck 0.06 rad,
-    shoulders and hips 0.10 rad, elbows and knees 0.12 rad, the spine and the shoulder girdles (``full32``)
-    0.03 rad (other angles 0.08 rad)."""
+    shoulders and hips 0.10 rad, elbows and knees 0.12 rad, the spine and the shoulder girdles (``full32``'s
+    ``spine_*`` and ``*_clavicle_*``, ``parsec31``'s clavicles) 0.03 rad (other angles 0.08 rad)."""
     out = np.empty(model.num_dofs, np.float64)
     root = set(model.topology.segment_dofs[0])
     for d, (name, kind) in enumerate(zip(model.dof_names, model.topology.dof_kinds, strict=True)):
