@@ -205,8 +205,8 @@ def skeleton_fit(
     dims: dict,
     model_name: str = "full25",
 ) -> np.ndarray:
-    """``(T, 15, 3)``: the run's body model (preset ``model_name`` with the run's dimensions ``dims``) fitted on each frame to the
-    detections of cameras ``cams`` alone (:func:`jaxmocap.fit.ik.fit_pose_2d` from the tracked state ``states[t]``,
+    """``(T, 15, 3)``: the run's body model (preset ``model_name`` with the run's dimensions ``dims``) fitted on each
+    frame to the detections of cameras ``cams`` alone (:func:`jaxmocap.fit.ik.fit_pose_2d` from the tracked state ``states[t]``,
     prior weight 1, each detection of confidence > 0.3 weighed by its confidence over
     :data:`~jaxmocap.tracking.init.KEYPOINT_SIGMA_PX`² in full-size pixels): what the skeleton itself can do with
     the three cameras' detections, without images, filter or smoothing."""
@@ -335,7 +335,8 @@ def loo_report(rows: list[dict], a, argv) -> str:
         "# Pose2Sim demo recording: leave one camera out\n",
         f"Reproduce: `{cmd}` ({common.stamp()}, {common.machine_line()})\n",
         "For each camera in turn, the recording is tracked from the other three (`jaxmocap.track` on a Pose2Sim "
-        f"project of three cameras: the `{a.model}` body, APF {a.particles} × {a.layers}, images down-sampled by {a.downsample}, cues "
+        f"project of three cameras: the `{a.model}` body, APF {a.particles} × {a.layers}, images down-sampled by "
+        f"{a.downsample}, cues "
         f"`{a.cues}`, seed {a.seed}, frames {a.frames}), and the tracked joints are projected into the held-out "
         "camera. Baseline: the same three cameras' detections of the subject triangulated (linear DLT weighed by "
         "confidence, detections under 0.3 dropped: Pose2Sim's weighting, without its view rejection) and projected "
@@ -385,10 +386,9 @@ def loo_report(rows: list[dict], a, argv) -> str:
         "What the body model can do at best with the detections: on each frame the run's model (its own body "
         "dimensions) fitted to the three cameras' detections alone by their reprojection error, from the tracked "
         "pose (`skeleton_fit`: no images, no filter, no smoothing), projected into the held-out camera like the "
-        "others. Where this is above the triangulation, no weighting of the detections against the image cues "
-        "brings the tracked joints below it: the model's joints cannot take the places the detector gives them "
-        "(the model's torso and shoulders, fixed limb lengths, joint centres where the detector has surface "
-        "landmarks).\n",
+        "others. Where this is above the triangulation, the detections alone cannot bring the model's joints below "
+        "it (the model's torso and shoulders, fixed limb lengths, joint centres where the detector has surface "
+        "landmarks); only what the images add can.\n",
         "| held out | skeleton fitted | tracked | triangulated | skeleton lower than triangulation |",
         "|---|---|---|---|---|",
         *(
