@@ -356,7 +356,9 @@ class TrackSetup:
         if not src.has_keypoints:
             raise ValueError("--body calibrate needs 2D keypoints (--keypoints)")
         if self.o.model in ("parsec31",):
-            raise ValueError("--body calibrate fits the full25/upper presets' dimensions, not parsec31's")
+            raise ValueError(
+                "--body calibrate fits the full25/full32/upper presets' dimensions, not parsec31's"
+            )
         obs, kept = [], []
         for t in self.frames:
             if len(obs) == self.CALIBRATION_FRAMES:

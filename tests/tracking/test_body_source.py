@@ -50,23 +50,26 @@ def test_detections_replace_the_body_file_and_the_file_is_kept_otherwise(source)
     assert not np.allclose(_lengths(measured.model), _lengths(from_file))
 
 
-def test_track_runs_with_a_calibrated_body(source, tmp_path):
+@pytest.mark.parametrize("model", ["full25", "full32"])
+def test_track_runs_with_a_calibrated_body(source, tmp_path, model):
     """``body="calibrate"``: a whole run (``jaxmocap track``'s :class:`~jaxmocap.tracking.tracker.Tracker`) with the
     preset's lengths and radii fitted to the run's first frames
     (:func:`jaxmocap.fit.shape_start.calibrate_from_start`): the model is the preset built with those dimensions,
-    recorded in ``run.json``, with radii moved from the preset's, and every frame is tracked."""
+    recorded in ``run.json``, with radii moved from the preset's, and every frame is tracked; for the default body
+    and for ``full32`` (spine and shoulder girdles)."""
     import json
 
     from jaxmocap.geometry import body
     from jaxmocap.tracking.tracker import Tracker
 
-    opts = TrackOptions(body="calibrate", frames="0:4", particles=40, layers=2, smooth="none")
+    opts = TrackOptions(body="calibrate", model=model, frames="0:4", particles=40, layers=2, smooth="none")
     run = Tracker(source, tmp_path, opts, quiet=True)
     setup = run.setup
     dims = setup.body_dimensions
     assert dims and any("calibrated on frames 0–3" in n for n in setup.notes)
+    assert setup.model.name == model
     np.testing.assert_allclose(
-        _lengths(setup.model), _lengths(build_model("full25", None, None, dims)), rtol=1e-6
+        _lengths(setup.model), _lengths(build_model(model, None, None, dims)), rtol=1e-6
     )
     moved = [
         k
