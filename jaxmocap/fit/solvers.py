@@ -18,7 +18,9 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-import jaxopt
+
+# jaxopt is imported by the functions that use it: its package imports SciPy's optimize (about 0.8 s), which a run
+# whose programs are all read back from disk (jaxmocap.stored_programs) never needs
 
 
 class SolveInfo(NamedTuple):
@@ -58,6 +60,8 @@ def least_squares(
       converged) rather than a ``while_loop``: the same iterates, a smaller program to compile (about 40 %
       less for a vmapped pose fit) and no data-dependent trip count under ``vmap``.
     """
+    import jaxopt
+
     solver = jaxopt.LevenbergMarquardt(
         residual_fn,
         maxiter=maxiter,
@@ -104,6 +108,8 @@ def bisection_with_value(
 ) -> tuple[jnp.ndarray, jnp.ndarray]:
     """:func:`bisection` that also returns ``fn`` at the root: ``(x, fn(x, *args))`` at the last midpoint, from
     which the caller tells a met tolerance from an exhausted ``maxiter`` or a bracket without a sign change."""
+    import jaxopt
+
     solver = jaxopt.Bisection(fn, lower=lo, upper=hi, maxiter=maxiter, tol=tol, check_bracket=False, jit=True)
     params, state = solver.run(None, *args)
     return params, state.value
@@ -113,6 +119,8 @@ def minimize(
     fn: Callable[..., jnp.ndarray], init: jnp.ndarray, *args, maxiter: int = 200, tol: float = 1e-6
 ) -> tuple[jnp.ndarray, SolveInfo]:
     """Minimise a smooth scalar ``fn(x, *args)`` from ``init`` by L-BFGS (zoom line search)."""
+    import jaxopt
+
     solver = jaxopt.LBFGS(fn, maxiter=maxiter, tol=tol, implicit_diff=False, jit=True)
     x, state = solver.run(init, *args)
     return x, SolveInfo(state.iter_num, state.value, state.error)

@@ -138,7 +138,7 @@ def _direct_plan(model, s: int, A: np.ndarray, Q: np.ndarray) -> list[tuple[int,
     frames_aligned = np.allclose(Q[s], np.eye(3), atol=1e-9) and (
         p < 0 or np.allclose(Q[p], np.eye(3), atol=1e-9)
     )
-    if not frames_aligned or not np.allclose(np.asarray(model.rest_rotation[s]), np.eye(3), atol=1e-9):
+    if not frames_aligned or not np.allclose(np.asarray(model.rest_rotation)[s], np.eye(3), atol=1e-9):
         return None
     plan, last = [], -1
     for d in topo.segment_dofs[s]:
@@ -146,7 +146,7 @@ def _direct_plan(model, s: int, A: np.ndarray, Q: np.ndarray) -> list[tuple[int,
             if p >= 0:
                 return None
             continue
-        v = A.T @ np.asarray(model.dof_axis[d], np.float64)  # the DOF axis in the file's frame
+        v = A.T @ np.asarray(model.dof_axis, np.float64)[d]  # the DOF axis in the file's frame
         k = int(np.argmax(np.abs(v)))
         if not np.isclose(abs(v[k]), 1.0, atol=1e-9) or float(np.asarray(model.rest_pose)[d]) != 0.0:
             return None
@@ -183,8 +183,8 @@ def model_bvh(
     R0, t0 = R0[0], t0[0]
     Q = np.swapaxes(R0, -1, -2)  # Q_s = (R_s⁰)ᵀ
     to_file = lambda v: (A.T @ v) / scale  # a world vector in file units
-    offsets = [to_file(t0[0])] + [to_file(R0[p] @ np.asarray(model.offset[s], np.float64)) for s, p in
-                                  enumerate(topo.parents) if p >= 0]  # fmt: skip
+    offset = np.asarray(model.offset, np.float64)  # one transfer (indexing the device array runs programs)
+    offsets = [to_file(t0[0])] + [to_file(R0[p] @ offset[s]) for s, p in enumerate(topo.parents) if p >= 0]
     jp = np.asarray(model.joint_point, np.float64)
     offsets += [to_file(R0[model.joint_segment[k]] @ jp[k]) for k in lay.extra]
 
@@ -222,12 +222,12 @@ def model_bvh(
     end_parents, end_offsets = [], []
     for j in np.flatnonzero(~has_child):
         if j < S:  # a leaf segment: its flesh end
-            s, base, along = j, np.zeros(3), np.asarray(model.offset[j], np.float64)
+            s, base, along = j, np.zeros(3), np.asarray(model.offset, np.float64)[j]
         else:  # an evaluation joint: the flesh end beyond it on a leaf segment
             k = lay.extra[j - S]
             s, base = model.joint_segment[k], jp[k]
             along = base
-        tip = np.asarray(model.shape_end[s], np.float64) - base
+        tip = np.asarray(model.shape_end, np.float64)[s] - base
         flesh = model.shape_kind[s] != body_mod.SHAPE_NONE and np.linalg.norm(tip) > 0.01
         if flesh and (j < S or (not seg_has_child[s] and float(tip @ base) > 0)):
             end = tip

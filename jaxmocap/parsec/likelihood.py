@@ -158,7 +158,8 @@ def observation(edge_maps, fg_maps) -> Observation:
     f = np.asarray(fg_maps)
     if e.shape != f.shape or e.ndim != 3:
         raise ValueError(f"edge and foreground maps must both be (V, H, W), got {e.shape} and {f.shape}")
-    return Observation(jnp.asarray(e.astype(np.uint8)), jnp.asarray((f != 0).astype(np.uint8)))
+    # a transfer each (jnp.asarray of a numpy array would run a compiled copy program)
+    return Observation(jax.device_put(e.astype(np.uint8)), jax.device_put((f != 0).astype(np.uint8)))
 
 
 class Terms(NamedTuple):

@@ -46,6 +46,7 @@ import math
 from collections.abc import Mapping
 from importlib import resources
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -195,10 +196,18 @@ def shape_from_dims(dims: BodyShape | Mapping[str, object] | None) -> BodyShape:
         for i, p in enumerate(PART_NAMES)
     ]
     lengths = [dims.get(n, base.lengths[k]) for k, n in enumerate(LENGTH_NAMES)]
+    xp = _array_module(limbs, lengths)
     return BodyShape(
-        jnp.stack([jnp.stack([jnp.asarray(v) for v in row]) for row in limbs]),
-        jnp.stack([jnp.asarray(v) for v in lengths]),
+        xp.stack([xp.stack([xp.asarray(v) for v in row]) for row in limbs]),
+        xp.stack([xp.asarray(v) for v in lengths]),
     )
+
+
+def _array_module(*values):
+    """``jax.numpy`` when any leaf of ``values`` is traced (gradients must flow), else ``numpy``: a concrete body
+    is built on the host, not as one compiled one-operation program per ``jax.numpy`` call (about 30 of them,
+    0.5–1 s of a run's start)."""
+    return jnp if any(isinstance(v, jax.core.Tracer) for v in jax.tree.leaves(values)) else np
 
 
 def cylinder_lengths(shape: BodyShape) -> jnp.ndarray:
@@ -228,12 +237,14 @@ def parsec31(dims: BodyShape | Mapping[str, object] | None = None, dtype=jnp.flo
     upright, left side towards +y, arms stretched horizontally towards −x (PARSEC's zero pose).
     """
     shape = shape_from_dims(dims)
-    limbs = jnp.asarray(shape.limbs, dtype)
-    L = jnp.asarray(shape.lengths, dtype)
-    zero = jnp.zeros((), dtype)
+    xp = _array_module(shape)  # numpy for a concrete body (one device transfer per field at the end)
+    dtype = np.dtype(dtype)
+    limbs = xp.asarray(shape.limbs, dtype)
+    L = xp.asarray(shape.lengths, dtype)
+    zero = xp.zeros((), dtype)
 
     def vec(*xs):
-        return jnp.stack([jnp.asarray(v, dtype) for v in xs])
+        return xp.stack([xp.asarray(v, dtype) for v in xs])
 
     offsets, dof_axis, seg_dofs, parents, kinds = [], [None] * NUM_DOFS, [], [], [None] * NUM_DOFS
     for name, parent, _rot, off, dofs in _SEGMENTS:
@@ -265,14 +276,14 @@ def parsec31(dims: BodyShape | Mapping[str, object] | None = None, dtype=jnp.flo
 
     # flesh: one cone per cylinder segment
     S = len(SEGMENT_NAMES)
-    cyl_len = cylinder_lengths(BodyShape(limbs, L))
+    cyl_len = [s * L[k] for k, s in _CYLINDER_LENGTH]  # cylinder_lengths
     kind = [body.SHAPE_NONE] * S
     starts = [vec(zero, zero, zero)] * S
     ends = [vec(zero, zero, zero)] * S
     r0 = [zero] * S
     r1 = [zero] * S
     for i, s in enumerate(CYLINDER_SEGMENT):
-        k = jnp.sqrt(limbs[i, 2] * limbs[i, 3])
+        k = xp.sqrt(limbs[i, 2] * limbs[i, 3])
         kind[s] = body.SHAPE_CONE
         ends[s] = vec(zero, zero, cyl_len[i])
         r0[s] = limbs[i, 0] * k
@@ -298,20 +309,22 @@ def parsec31(dims: BodyShape | Mapping[str, object] | None = None, dtype=jnp.flo
     }
     names = tuple(j for j in body.EVAL_JOINTS if j in joints)
     # standing: the lower of the two ankles at z = 0 (legs hang straight down at zero angles)
-    standing = jnp.maximum(L[2] + L[3], L[6] + L[7])
-    rest = jnp.zeros(NUM_DOFS, dtype).at[5].set(standing)
+    standing = xp.maximum(L[2] + L[3], L[6] + L[7])
+    rest = xp.concatenate([xp.zeros(5, dtype), xp.reshape(standing, (1,)), xp.zeros(NUM_DOFS - 6, dtype)])
+    # numpy fields go to the device by a transfer (jnp.asarray of a numpy array compiles a program per shape)
+    put = jax.device_put if xp is np else jnp.asarray
     return body.BodyModel(
-        rest_rotation=jnp.asarray(np.stack([s[2] for s in _SEGMENTS]), dtype),
-        offset=jnp.stack(offsets),
-        dof_axis=jnp.asarray(np.asarray(dof_axis, dtype=np.float64), dtype),
-        lower=jnp.asarray(lower, dtype),
-        upper=jnp.asarray(upper, dtype),
-        rest_pose=rest,
-        joint_point=jnp.stack([joints[n][1] for n in names]),
-        shape_start=jnp.stack(starts),
-        shape_end=jnp.stack(ends),
-        radius_start=jnp.stack(r0),
-        radius_end=jnp.stack(r1),
+        rest_rotation=put(np.stack([s[2] for s in _SEGMENTS]).astype(dtype)),
+        offset=put(xp.stack(offsets)),
+        dof_axis=put(np.asarray(dof_axis, dtype=np.float64).astype(dtype)),
+        lower=put(lower.astype(dtype)),
+        upper=put(upper.astype(dtype)),
+        rest_pose=put(rest),
+        joint_point=put(xp.stack([joints[n][1] for n in names])),
+        shape_start=put(xp.stack(starts)),
+        shape_end=put(xp.stack(ends)),
+        radius_start=put(xp.stack(r0)),
+        radius_end=put(xp.stack(r1)),
         name="parsec31",
         topology=topology,
         joint_names=names,
@@ -334,7 +347,7 @@ def parsec31_in_metres(dims: BodyShape | Mapping[str, object] | None = None) -> 
     shape = shape_from_dims(dims or None)  # no dimensions given: sequenceB's, as for None
     limbs = np.asarray(shape.limbs, np.float64).copy()
     limbs[:, :2] /= MM_PER_M
-    shape = BodyShape(jnp.asarray(limbs), jnp.asarray(np.asarray(shape.lengths) / MM_PER_M))
+    shape = BodyShape(limbs.astype(np.float32), (np.asarray(shape.lengths) / MM_PER_M).astype(np.float32))
     return parsec31(shape)
 
 

@@ -23,6 +23,7 @@ motion model beyond the annealing, no track-loss detection, no resume checkpoint
 
 from __future__ import annotations
 
+import hashlib
 import os
 from collections.abc import Callable
 
@@ -37,6 +38,7 @@ from jaxmocap.filters.base import State
 from jaxmocap.geometry import body as body_mod
 from jaxmocap.parsec import annealing
 from jaxmocap.parsec import likelihood as pl
+from jaxmocap.stored_programs import StoredJit
 from jaxmocap.tracking.loop import TrackingLoop
 from jaxmocap.tracking.options import TrackOptions
 from jaxmocap.tracking.outputs import check_export_options
@@ -82,6 +84,12 @@ def weighted_start(filt: APF, loglik: Callable, key, x0, std, obs) -> State:
     top = jnp.max(jnp.where(jnp.isfinite(ll), ll, -jnp.inf))
     lw = jnp.where(jnp.isfinite(ll), b * (ll - top), -jnp.inf)
     return State(s.particles, lw - jax.scipy.special.logsumexp(lw), s.estimate)
+
+
+def _f32(x) -> jax.Array:
+    """A host array as a float32 device array by a transfer (``jnp.asarray`` with a dtype runs a compiled
+    conversion program)."""
+    return jax.device_put(np.asarray(x, np.float32), may_alias=False)
 
 
 def _unsupported(o) -> list[str]:
@@ -172,15 +180,25 @@ class ParsecSetup:
     def make_filter(self, x0):
         """The APF in PARSEC mode on the PARSEC likelihood."""
         self._loglik = make_loglik(self.source.shape, self.source.cameras)
-        return annealing.parsec_apf(
-            self._loglik, jnp.asarray(self.std, jnp.float32), self.num_particles, self.layers
-        )
+        return annealing.parsec_apf(self._loglik, _f32(self.std), self.num_particles, self.layers)
 
     def start(self, filt, key, x0, spread, obs) -> State:
         """bodytrack's weighted initial set (:func:`weighted_start`)."""
-        std = jnp.asarray(self.std, jnp.float32)
-        init = jax.jit(lambda k, x, ob: weighted_start(filt, self._loglik, k, x, std, ob))
-        return init(key, jnp.asarray(x0, jnp.float32), obs)
+        std = _f32(self.std)
+        init = StoredJit(
+            lambda k, x, ob: weighted_start(filt, self._loglik, k, x, std, ob),
+            "weighted start " + self.program_tag(),
+        )
+        return init(key, _f32(x0), obs)
+
+    def program_tag(self) -> str:
+        """What the run's programs close over (:mod:`jaxmocap.stored_programs`): the body's dimensions, the
+        cameras, σ_0, the particle and layer counts (the likelihood's configuration is the package's code)."""
+        h = hashlib.sha256()
+        shape, cams = self.source.shape, self.source.cameras
+        for a in (shape.limbs, shape.lengths, *cams, self.std):
+            h.update(np.ascontiguousarray(np.asarray(a, np.float64)).tobytes())
+        return f"parsec31 apf {self.num_particles}x{self.layers} {h.hexdigest()}"
 
     def detection(self, fd, masks, last_good):
         return None

@@ -83,6 +83,7 @@ from jaxmocap.filters.base import State
 from jaxmocap.filters.factory import particles_text
 from jaxmocap.io import export
 from jaxmocap.io.sources import BadFrame
+from jaxmocap.stored_programs import StoredJit
 from jaxmocap.tracking import interrupts, outputs, resources, run_folder
 from jaxmocap.tracking.compile_watch import CompileWatch
 from jaxmocap.tracking.init import root_translation_dofs
@@ -182,8 +183,10 @@ class TrackingLoop:
             return new, info, (None if joints_of is None else joints_of(info.estimate))
 
         # the filter (a pytree: its arrays, schedule values and likelihood leaves are data) is an argument, not a
-        # constant of the program: a filter that differs only in data reuses the compiled step
-        self._jitted = self._step = jax.jit(step)
+        # constant of the program: a filter that differs only in data reuses the compiled step. A setup whose
+        # step is determined by a tag (``program_tag``) keeps the traced step on disk (:mod:`jaxmocap.stored_programs`)
+        tag = getattr(self.setup, "program_tag", None)
+        self._jitted = self._step = StoredJit(step, None if tag is None else "step " + tag())
 
     def __getattr__(self, name):
         if name == "setup":
@@ -451,8 +454,12 @@ class TrackingLoop:
         ending = {"wall": t_begin, "resumed_at": resumed_at}
         ck = run_folder.Checkpoints(self.out, o.fsync, model.num_dofs, p["x0"], self._ref_frame)
         writer = run_folder.BackgroundWriter()
+        # (a run of one frame is not smoothed: SciPy is not needed)
         threading.Thread(
-            target=outputs.preload, args=(o.smooth,), name="jaxmocap-preload", daemon=True
+            target=outputs.preload,
+            args=(o.smooth if len(frames) > 1 else None,),
+            name="jaxmocap-preload",
+            daemon=True,
         ).start()
 
         def write_frame(t, x, joints, record, after):  # in the writer's thread, in frame order

@@ -69,11 +69,11 @@ def smooth_text(cutoff: float | None) -> str:
 
 def butterworth(x: np.ndarray, fps: float, cutoff_hz: float, order: int = ORDER) -> np.ndarray:
     """Zero-phase low-pass of ``x (T, ...)`` along axis 0 (module docstring); NaN-free input."""
-    from scipy import signal
-
     x = np.asarray(x, np.float64)
     if x.shape[0] < 2:
         return x.copy()
+    from scipy import signal  # imported when used: about 1 s
+
     b, a = signal.butter(order // 2, cutoff_hz / (fps / 2.0), btype="low")
     padlen = min(3 * max(len(a), len(b)), x.shape[0] - 1)
     return signal.filtfilt(b, a, x, axis=0, padlen=padlen)

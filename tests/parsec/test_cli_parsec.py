@@ -144,3 +144,38 @@ def test_parsec_rejects_other_filters(tmp_path, capsys):
     assert main(["track", str(seq), "--filter", "sir", "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert "not supported for a PARSEC bodytrack sequence" in err and "--filter sir" in err
+
+
+@pytest.mark.slow
+def test_a_second_run_reads_its_programs_back(tmp_path):
+    """With the compilation cache on, the first run stores its traced weighted start and filter step
+    (jaxmocap.stored_programs) and a second process calls them without tracing the step (``compilations`` 0):
+    the same poses bit for bit, and the same as a run with the cache off."""
+    import os
+    import subprocess
+    import sys
+
+    _assemble(tmp_path / "in")
+    cache = tmp_path / "cache"
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    env["JAX_PLATFORMS"] = "cpu"
+
+    def run(name, cache_dir):
+        cmd = [sys.executable, "-m", "jaxmocap.cli", "track", str(tmp_path / "in"), "--particles", "50"]
+        cmd += ["--layers", "1", "--frames", "0:1", "--out", str(tmp_path / name), "--quiet"]
+        proc = subprocess.run(
+            cmd, env=dict(env, JAXMOCAP_CACHE_DIR=cache_dir), capture_output=True, text=True, timeout=600
+        )
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        summary = json.loads((tmp_path / name / "diagnostics.json").read_text())["summary"]
+        return export.load_poses(tmp_path / name)["state"], summary["compilations"]
+
+    first, n1 = run("first", str(cache))
+    assert (
+        len(list((cache / "jaxmocap-exported").glob("*.jaxexport"))) == 2
+    )  # the weighted start and the step
+    second, n2 = run("second", str(cache))
+    off, n3 = run("off", "off")
+    assert (n1, n2, n3) == (1, 0, 1)
+    np.testing.assert_array_equal(first, second)
+    np.testing.assert_array_equal(first, off)
