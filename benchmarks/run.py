@@ -203,6 +203,14 @@ SCRIPTS: dict[str, Script] = {
     "scale": Script(
         "Scaling beyond one device (sharded particles, batched runs, memory)", "perf/bench_scale.py"
     ),
+    "parsec_latency": Script(
+        "First-frame latency of the PARSEC run, warm and cold, against bodytrack and a revision",
+        "perf/parsec_latency.py",
+        "--rounds 5 --against 268d9f4 --out benchmarks/results/parsec_latency.md",
+        writes=("parsec_latency.md",),
+        env="JAX_PLATFORMS=cpu",
+        slow=True,
+    ),
     "compile_partitions": Script(
         "Compile time of the partitioned / hierarchical step",
         "perf/compile_partitions.py",
