@@ -5,7 +5,8 @@ is ``fold_in(key(seed), frame)`` (never carried), so that a resumed run reproduc
 constant-velocity prediction of the root (its translation, and by default its angles:
 ``TrackOptions.velocity_dofs``) with full turns of the heading taken out (:func:`unwind`), the filter step (jitted **once**, with the filter as an
 argument, so that its data — diffusion std, schedule values, the likelihood's cue weights and λ — are not constants
-of the program: ``trace_count`` stays 1),
+of the program: ``trace_count`` stays 1; 0 when a setup with a ``program_tag``, PARSEC's, reads the traced step
+back from disk, :mod:`jaxmocap.stored_programs`),
 track-loss detection and re-initialisation, and incremental outputs (:mod:`jaxmocap.io.export`) with a resume
 checkpoint (``resume.npz``, :class:`jaxmocap.tracking.run_folder.Checkpoints`: at most once a second, and on every
 way out; a run killed by SIGKILL is resumed from its last checkpoint and tracks the frames after it again, to the
@@ -146,7 +147,8 @@ class TrackingLoop:
 
     Subclasses build ``self.setup`` in their constructor; the setup's attributes (``model``, ``frames``,
     ``likelihood``, ``features``, ``cues``, ``num_particles``, ``layers``, ``std`` …) are read through the run.
-    ``filter`` is built once the initial state is known; ``trace_count`` counts compilations of the filter step.
+    ``filter`` is built once the initial state is known; ``trace_count`` counts the traces of the filter step (0
+    when a setup's ``program_tag`` found the step stored on disk: :mod:`jaxmocap.stored_programs`).
     ``compile_ahead``: compile the step while the first frame is initialised (module docstring);
     ``compiled_ahead``: whether the first step found it compiled that way.
     """
