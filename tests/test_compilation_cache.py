@@ -13,7 +13,7 @@ import logging, sys
 import jax, jax.numpy as jnp
 from jaxmocap import compilation_cache
 logging.basicConfig(level=logging.DEBUG, stream=sys.stdout, format="%(message)s")
-print("cache dir:", compilation_cache.enable(min_compile_seconds=0))
+print("cache dir:", compilation_cache.enable())  # the default keeps every program, this small one too
 @jax.jit
 def sine_sum(x):
     return jnp.cumsum(jnp.sin(x) * 3.0)
