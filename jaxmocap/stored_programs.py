@@ -14,7 +14,8 @@ body; the compilation of the deserialised module is then found in the persistent
 SHA-256 of the tag, the leaves' abstract values, the backend, the JAX and jaxlib versions and the source of this
 package (every ``.py`` file of ``jaxmocap``), so any change of the code or of the versions traces afresh. A file
 that cannot be read back (torn, from another JAX) is ignored and written again. Deleting the directory is always
-safe.
+safe. A stored file is loaded as code (the output tree is a pickle, the program StableHLO), like the executables
+of JAX's own cache beside it: keep the cache directory private to its user.
 
 Use it only where the tag covers every value the function closes over: a constant missing from the tag would
 give a stale program for a new value of it. The argument leaves themselves are data of the program (only their
@@ -172,7 +173,10 @@ def _write(path: pathlib.Path, exp, out_tree) -> None:
         data = _MAGIC + len(tree).to_bytes(8, "little") + tree + bytes(exp.serialize())
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        tmp.write_bytes(data)
-        os.replace(tmp, path)
+        try:
+            tmp.write_bytes(data)
+            os.replace(tmp, path)
+        finally:
+            tmp.unlink(missing_ok=True)
     except Exception:  # noqa: BLE001 (unpicklable output tree, read-only or full disk: run as usual)
         pass
