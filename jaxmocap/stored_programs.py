@@ -124,7 +124,7 @@ class StoredJit:
             trees.append(out_tree)
             return out_leaves
 
-        exp = jax.export.export(jax.jit(flat), platforms=[jax.default_backend()])(*leaves)
+        exp = jax.export.export(jax.jit(flat))(*leaves)  # for the default backend's platform (cpu, cuda, ...)
         return exp, trees[-1]
 
     def __call__(self, *args):
