@@ -97,14 +97,18 @@ class StoredJit:
 
     def _program(self, args: tuple):
         """``(jitted call of the exported program, output tree, flat arguments)``, or None for plain jit."""
+        if self.tag is None:
+            return None
         folder = self.folder if self.folder is not None else directory()
-        if self.tag is None or folder is None:
+        if folder is None:
             return None
         leaves, in_tree = jax.tree.flatten(args)
-        key = self._key(leaves)
-        hit = self._programs.get(key)
+        # the programs of this process by structure and abstract values (hashable, cheap): the text key and its
+        # SHA-256 only for a new one, not on every frame's call
+        avals = tuple(jax.typeof(x) for x in leaves)
+        hit = self._programs.get((in_tree, avals))
         if hit is None:
-            path = folder / f"{key}.jaxexport"
+            path = folder / f"{self._key(leaves)}.jaxexport"
             found = _read(path)
             if found is None:
                 found = self._export(in_tree, leaves)
@@ -113,7 +117,7 @@ class StoredJit:
             else:
                 self.loaded += 1
             exp, out_tree = found
-            hit = self._programs[key] = (jax.jit(exp.call), out_tree)
+            hit = self._programs[in_tree, avals] = (jax.jit(exp.call), out_tree)
         return hit[0], hit[1], leaves
 
     def _export(self, in_tree, leaves):

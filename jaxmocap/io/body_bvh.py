@@ -186,6 +186,7 @@ def model_bvh(
     offset = np.asarray(model.offset, np.float64)  # one transfer (indexing the device array runs programs)
     offsets = [to_file(t0[0])] + [to_file(R0[p] @ offset[s]) for s, p in enumerate(topo.parents) if p >= 0]
     jp = np.asarray(model.joint_point, np.float64)
+    shape_end = np.asarray(model.shape_end, np.float64)
     offsets += [to_file(R0[model.joint_segment[k]] @ jp[k]) for k in lay.extra]
 
     R, t = segment_poses_np(model, states)
@@ -222,12 +223,12 @@ def model_bvh(
     end_parents, end_offsets = [], []
     for j in np.flatnonzero(~has_child):
         if j < S:  # a leaf segment: its flesh end
-            s, base, along = j, np.zeros(3), np.asarray(model.offset, np.float64)[j]
+            s, base, along = j, np.zeros(3), offset[j]
         else:  # an evaluation joint: the flesh end beyond it on a leaf segment
             k = lay.extra[j - S]
             s, base = model.joint_segment[k], jp[k]
             along = base
-        tip = np.asarray(model.shape_end, np.float64)[s] - base
+        tip = shape_end[s] - base
         flesh = model.shape_kind[s] != body_mod.SHAPE_NONE and np.linalg.norm(tip) > 0.01
         if flesh and (j < S or (not seg_has_child[s] and float(tip @ base) > 0)):
             end = tip
