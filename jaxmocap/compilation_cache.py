@@ -10,8 +10,9 @@ Directory: ``$JAXMOCAP_CACHE_DIR``, else ``$XDG_CACHE_HOME/jaxmocap/xla`` (``~/.
 (``JAX_COMPILATION_CACHE_DIR``, ``jax.config``) is used as it is. Programs that took at least
 ``min_compile_seconds`` to compile are stored: by default every program, the one-operation programs of eager
 ``jax.numpy`` code included, because reading such a program back is cheaper than compiling it again (a warm
-two-frame stereo ``jaxmocap track`` compiles about 160 of them: 17.5–19.3 s with every program stored against
-23.1–25.7 s with only those over 1 s, three interleaved rounds, 1.8 against 1.1 MB of cache). Programs whose
+two-frame stereo ``jaxmocap track --init ik`` compiles about 160 of them: 18.4–20.3 s with every program stored
+against 23.5–24.9 s with only those over 1 s, ratio per round 0.73–0.91 as found and beside a busy process, 1.8
+against 1.1 MB of cache). Programs whose
 trace a caller names by a tag (PARSEC runs) are also kept traced, in its ``jaxmocap-exported/`` folder
 (:mod:`jaxmocap.stored_programs`). Deleting the directory is always safe. Scripts and notebooks get the same cache
 by calling :func:`enable` before their first compilation.
