@@ -217,13 +217,12 @@ def track(
     compilation cache. Bad input raises :class:`jaxmocap.errors.MocapInputError` (or ``ValueError`` for a bad
     option value), with one line naming the problem.
     """
-    from jaxmocap import compilation_cache
+    from jaxmocap import compilation_cache, stored_programs
     from jaxmocap.io.export import load_poses
     from jaxmocap.tracking.options import option_types
     from jaxmocap.tracking.tracker import Tracker
 
-    if cache:
-        compilation_cache.enable()
+    cache_dir = compilation_cache.enable() if cache else None
     unknown = sorted(set(options) - set(option_types()))
     if unknown:
         raise TypeError(f"track() got unknown option(s) {', '.join(unknown)}")
@@ -275,7 +274,8 @@ def track(
             values["frames"] = opts.frames
         tracker = Tracker(source, folder, opts, quiet=quiet)
         try:
-            summary = tracker.run()
+            with stored_programs.use(cache_dir):  # the traced step kept beside the compiled programs
+                summary = tracker.run()
         finally:
             if not temporary:
                 write_config(folder, values, tracker.setup)

@@ -729,11 +729,13 @@ def main(argv=None) -> int:
 def _main(argv) -> int:
     args = build_parser().parse_args(argv)
     import jaxmocap.parsec  # noqa: F401  (the PARSEC wing registers the parsec31 body and the .cal camera reader)
-    from jaxmocap import compilation_cache
+    from jaxmocap import compilation_cache, stored_programs
 
-    compilation_cache.enable()  # a second run of a configuration reloads its compiled programs
+    # a second run of a configuration reloads its compiled programs, and its traced steps (no tracing)
+    cache = compilation_cache.enable()
     try:
-        return args.func(args)
+        with stored_programs.use(cache):
+            return args.func(args)
     except MocapInputError as e:
         print(f"jaxmocap: error: {e}", file=sys.stderr)
         return 2

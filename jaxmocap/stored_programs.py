@@ -2,8 +2,9 @@
 
 JAX's persistent compilation cache (:mod:`jaxmocap.compilation_cache`) keeps the *compiled* programs, but it finds
 one only after the function has been traced to a jaxpr and lowered to StableHLO, because its key is a hash of
-that module. For the PARSEC run those two steps are most of a warm start: tracing and lowering its weighted start
-and its filter step take 4–5 s, reloading both executables 1.5 s (``benchmarks/results/parsec_track.md``).
+that module. For a warm run those two steps are most of the start: PARSEC's weighted start and filter step take
+4–5 s to trace and lower, reloading both executables 1.5 s (``benchmarks/results/parsec_track.md``); the filter step
+of ``jaxmocap track`` (likelihood, annealing layers, refinement) 5–8 s.
 
 :class:`StoredJit` is ``jax.jit(fn)`` for a function whose trace is fully determined by a **tag** that the caller
 builds from everything the function closes over (the body's dimensions, the calibration, the particle count, …)
@@ -19,32 +20,62 @@ of JAX's own cache beside it: keep the cache directory private to its user.
 
 Use it only where the tag covers every value the function closes over: a constant missing from the tag would
 give a stale program for a new value of it. The argument leaves themselves are data of the program (only their
-shapes and dtypes are in the key).
+shapes and dtypes are in the key); the **structure** of the arguments — the tree and its static data, e.g. a
+filter's settings and the body model, rig and flesh points that the tracker's likelihood holds as constants of
+its program — is in the key as the SHA-256 of its pickle, so it needs no tag of its own. Arguments whose structure
+cannot be pickled (a lambda, a closure in the static data) are never stored: plain ``jax.jit`` for them. So is
+everything outside :func:`use`: the command line and :func:`jaxmocap.track` store programs while the compilation
+cache is on (:mod:`jaxmocap.compilation_cache`); a script that wants the same wraps its run in
+``with stored_programs.use(compilation_cache.enable()):``. Outside such a block (tests, notebooks that
+monkeypatch the package's functions) every call traces as ``jax.jit`` does.
+
+Besides the tag, structure and shapes, the key holds the versions of JAX, jaxlib, NumPy, optax and jaxopt, the
+backend, the configuration flags that change a trace (``jax_enable_x64``, the default matmul precision, the
+dtype and rank promotion rules, the PRNG implementation) and the package's source.
 """
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
+import importlib.metadata
+import inspect
 import os
 import pathlib
 import pickle
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 import jax
 
-__all__ = ["StoredJit", "directory", "source_digest"]
+__all__ = ["StoredJit", "directory", "source_digest", "stored_jit", "use"]
 
 #: The sub-folder of the compilation cache that holds the stored programs.
 FOLDER = "jaxmocap-exported"
 _MAGIC = b"JXMX1\n"
 
 
+#: the folders of the enclosing :func:`use` blocks, innermost last (None: storing off in that block)
+_ACTIVE: list[pathlib.Path | None] = []
+
+
+@contextlib.contextmanager
+def use(cache: str | os.PathLike | None) -> Iterator[pathlib.Path | None]:
+    """Store and read programs in ``cache / FOLDER`` inside the block (``cache``: the compilation cache directory,
+    :func:`jaxmocap.compilation_cache.enable`'s result; None: not at all). Module-wide, not per thread: a thread
+    started in the block (the tracker compiles its step ahead in one) sees it too. Yields the folder."""
+    folder = None if cache is None else pathlib.Path(cache) / FOLDER
+    _ACTIVE.append(folder)
+    try:
+        yield folder
+    finally:
+        _ACTIVE.pop()
+
+
 def directory() -> pathlib.Path | None:
-    """Where stored programs go: ``FOLDER`` inside the persistent compilation cache directory JAX is using (None
-    when it uses none: then :class:`StoredJit` is plain ``jax.jit``)."""
-    current = jax.config.jax_compilation_cache_dir
-    return pathlib.Path(current) / FOLDER if current else None
+    """Where stored programs go: the folder of the innermost :func:`use` block, None outside one (then
+    :class:`StoredJit` without a ``folder`` is plain ``jax.jit``)."""
+    return _ACTIVE[-1] if _ACTIVE else None
 
 
 @functools.cache
@@ -64,33 +95,74 @@ def _signature(leaves) -> str:
     return ";".join(str(jax.typeof(x)) for x in leaves)
 
 
-def _versions() -> str:
-    import jaxlib
+#: the distributions whose code runs while the package's functions are traced
+_TRACED_WITH = ("jax", "jaxlib", "numpy", "optax", "jaxopt")
+#: the configuration flags that change what a function traces to
+_TRACE_FLAGS = (
+    "jax_enable_x64",
+    "jax_default_matmul_precision",
+    "jax_numpy_dtype_promotion",
+    "jax_numpy_rank_promotion",
+    "jax_default_prng_impl",
+)
 
-    return f"jax {jax.__version__} jaxlib {jaxlib.__version__} backend {jax.default_backend()}"
+
+@functools.cache
+def _distributions() -> str:
+    found = []
+    for name in _TRACED_WITH:
+        try:
+            found.append(f"{name} {importlib.metadata.version(name)}")
+        except importlib.metadata.PackageNotFoundError:
+            found.append(f"{name} -")
+    return " ".join(found)
+
+
+def _versions() -> str:
+    """The versions, backend and trace flags of the key (module docstring)."""
+    flags = " ".join(f"{f}={getattr(jax.config, f, None)}" for f in _TRACE_FLAGS)
+    return f"{_distributions()} jax {jax.__version__} backend {jax.default_backend()} {flags}"
+
+
+def _structure(in_tree) -> str | None:
+    """SHA-256 of the pickled argument structure (its static data included), None when it cannot be pickled."""
+    try:
+        return hashlib.sha256(pickle.dumps(in_tree, protocol=5)).hexdigest()
+    except Exception:  # noqa: BLE001 (a lambda or a closure in the static data: this call is not stored)
+        return None
 
 
 class StoredJit:
     """``jax.jit(fn)`` whose exported program is kept on disk under a caller's ``tag`` (module docstring).
 
-    ``tag``: a string that determines ``fn``'s trace for given argument shapes, or None (then this is plain
-    ``jax.jit``); ``folder``: where to keep the programs (default :func:`directory`). Calling it and
+    ``tag``: a string that determines ``fn``'s trace for a given argument structure and shapes (it names what
+    ``fn`` closes over), or None (then this is plain ``jax.jit``); ``folder``: where to keep the programs (default
+    :func:`directory`: only inside :func:`use`); ``key_structure=False``: the tag names the arguments' static
+    structure too (a caller whose arguments hold a closure, such as PARSEC's filter and its likelihood), which is
+    then left out of the key. Calling it and
     :meth:`lower` take the same arguments as ``fn``. ``loaded`` counts the programs read back from disk,
     ``exported`` the programs traced and written this process.
     """
 
-    def __init__(self, fn: Callable, tag: str | None, folder: str | os.PathLike | None = None):
+    def __init__(
+        self,
+        fn: Callable,
+        tag: str | None,
+        folder: str | os.PathLike | None = None,
+        key_structure: bool = True,
+    ):
         self.fn = fn
         self.tag = tag
+        self.key_structure = key_structure
         self.folder = None if folder is None else pathlib.Path(folder)
         self._jit = jax.jit(fn)
         self._programs: dict[str, tuple] = {}
         self.loaded = 0
         self.exported = 0
 
-    def _key(self, leaves) -> str:
+    def _key(self, structure: str, leaves) -> str:
         h = hashlib.sha256()
-        for part in (self.tag, _signature(leaves), _versions(), source_digest()):
+        for part in (self.tag, structure, _signature(leaves), _versions(), source_digest()):
             h.update(part.encode())
             h.update(b"\0")
         return h.hexdigest()
@@ -103,22 +175,35 @@ class StoredJit:
         if folder is None:
             return None
         leaves, in_tree = jax.tree.flatten(args)
+        if any(isinstance(x, jax.core.Tracer) for x in leaves):  # inside a caller's jit, vmap or grad
+            return None
         # the programs of this process by structure and abstract values (hashable, cheap): the text key and its
         # SHA-256 only for a new one, not on every frame's call
         avals = tuple(jax.typeof(x) for x in leaves)
-        hit = self._programs.get((in_tree, avals))
-        if hit is None:
-            path = folder / f"{self._key(leaves)}.jaxexport"
-            found = _read(path)
-            if found is None:
-                found = self._export(in_tree, leaves)
-                _write(path, *found)
-                self.exported += 1
-            else:
-                self.loaded += 1
-            exp, out_tree = found
-            hit = self._programs[in_tree, avals] = (jax.jit(exp.call), out_tree)
+        try:
+            hit = self._programs[folder, in_tree, avals]
+        except KeyError:
+            hit = self._programs[folder, in_tree, avals] = self._find(folder, in_tree, leaves)
+        if hit is None:  # a structure that cannot be keyed: plain jit
+            return None
         return hit[0], hit[1], leaves
+
+    def _find(self, folder: pathlib.Path, in_tree, leaves):
+        """``(jitted call, output tree)`` of the program read from ``folder`` or traced and written there; None
+        when the structure cannot be keyed."""
+        structure = _structure(in_tree) if self.key_structure else "named by the tag"
+        if structure is None:
+            return None
+        path = folder / f"{self._key(structure, leaves)}.jaxexport"
+        found = _read(path)
+        if found is None:
+            found = self._export(in_tree, leaves)
+            _write(path, *found)
+            self.exported += 1
+        else:
+            self.loaded += 1
+        exp, out_tree = found
+        return jax.jit(exp.call), out_tree
 
     def _export(self, in_tree, leaves):
         trees = []
@@ -140,7 +225,8 @@ class StoredJit:
 
     def _cache_size(self) -> int:
         """The compiled variants in memory (as ``jax.jit``'s): the plain jit's and those of the stored programs."""
-        return self._jit._cache_size() + sum(call._cache_size() for call, _ in self._programs.values())
+        stored = (hit for hit in self._programs.values() if hit is not None)
+        return self._jit._cache_size() + sum(call._cache_size() for call, _ in stored)
 
     def lower(self, *args):
         """The lowered program for ``args`` (``.compile()`` it), as ``jax.jit(fn).lower`` (of the flat exported
@@ -150,6 +236,69 @@ class StoredJit:
             return self._jit.lower(*args)
         call, _, leaves = prog
         return call.lower(*leaves)
+
+
+class _StoredFunction:
+    """:func:`stored_jit`'s wrapper: ``jax.jit(fn, static_argnames=static)`` outside :func:`use` or under a
+    transformation, a :class:`StoredJit` per combination of static values inside."""
+
+    def __init__(self, fn: Callable, static: tuple[str, ...]):
+        self.fn, self.static = fn, static
+        self._signature = inspect.signature(fn)
+        self._jit = jax.jit(fn, static_argnames=static) if static else jax.jit(fn)
+        self._stored: dict[tuple, StoredJit] = {}
+        functools.update_wrapper(self, fn)
+
+    def _split(self, args, kwargs):
+        bound = self._signature.bind(*args, **kwargs)
+        bound.apply_defaults()
+        static = tuple((n, bound.arguments[n]) for n in self.static)
+        names = tuple(n for n in bound.arguments if n not in self.static)
+        return static, names, tuple(bound.arguments[n] for n in names)
+
+    def _stored_for(self, static, names) -> StoredJit:
+        s = self._stored.get((static, names))
+        if s is None:
+            fn, fixed = self.fn, dict(static)
+
+            def call(*dynamic):
+                return fn(**dict(zip(names, dynamic, strict=True)), **fixed)
+
+            tag = f"{fn.__module__}.{fn.__qualname__} {names!r} {static!r}"
+            s = self._stored[static, names] = StoredJit(call, tag)
+        return s
+
+    def _plain(self, args, kwargs) -> bool:
+        if directory() is None:
+            return True
+        return any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves((args, kwargs)))
+
+    def __call__(self, *args, **kwargs):
+        if self._plain(args, kwargs):
+            return self._jit(*args, **kwargs)
+        static, names, dynamic = self._split(args, kwargs)
+        return self._stored_for(static, names)(*dynamic)
+
+    def lower(self, *args, **kwargs):
+        if self._plain(args, kwargs):
+            return self._jit.lower(*args, **kwargs)
+        static, names, dynamic = self._split(args, kwargs)
+        return self._stored_for(static, names).lower(*dynamic)
+
+    def _cache_size(self) -> int:
+        """The compiled variants in memory: the plain jit's and those of the stored programs."""
+        return self._jit._cache_size() + sum(s._cache_size() for s in self._stored.values())
+
+
+def stored_jit(fn: Callable | None = None, *, static_argnames: tuple[str, ...] = ()):
+    """``jax.jit`` for a module-level function whose trace depends only on its arguments and the package's code
+    (no closure, no module-level value that changes at run time): inside :func:`use` its traced programs are kept
+    on disk like :class:`StoredJit`'s, tagged with the function's qualified name and the values of its
+    ``static_argnames`` (which must be hashable and have a faithful ``repr``). Called under ``jit``, ``vmap`` or
+    ``grad`` it is the plain ``jax.jit``, inlined into the caller's program as usual."""
+    if fn is None:
+        return functools.partial(stored_jit, static_argnames=tuple(static_argnames))
+    return _StoredFunction(fn, tuple(static_argnames))
 
 
 def _read(path: pathlib.Path):

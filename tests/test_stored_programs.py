@@ -4,6 +4,7 @@ program read back without tracing the function, with the same results bit for bi
 
 from __future__ import annotations
 
+import dataclasses
 from typing import NamedTuple
 
 import jax
@@ -99,17 +100,105 @@ def test_an_unreadable_file_is_traced_and_written_again(tmp_path, damage):
     assert (s.exported, s.loaded, again.traces) == (0, 1, 0)
 
 
-def test_without_a_tag_or_a_folder_it_is_plain_jit(tmp_path, monkeypatch):
+def test_without_a_tag_or_a_folder_it_is_plain_jit(tmp_path):
     fn = Counted()
     s = StoredJit(fn, None, folder=tmp_path)
     _equal(s(*_args()), jax.jit(Counted())(*_args()))
     assert s.lower(*_args()).compile() is not None
     assert (s.exported, s.loaded) == (0, 0) and not any(tmp_path.iterdir())
-    # no folder given and no persistent compilation cache in use: nothing stored anywhere
-    monkeypatch.setattr(stored_programs, "directory", lambda: None)
+    # no folder given and outside stored_programs.use (a JAX compilation cache alone does not store): plain jit
+    assert stored_programs.directory() is None
     s = StoredJit(Counted(), "tag")
     s(*_args())
     assert (s.exported, s.loaded) == (0, 0)
+    with stored_programs.use(tmp_path) as folder:  # inside: the folder of the block
+        assert folder == tmp_path / stored_programs.FOLDER == stored_programs.directory()
+        s(*_args())
+        with stored_programs.use(None):
+            assert stored_programs.directory() is None
+    assert (s.exported, s.loaded) == (1, 0) and len(list(folder.glob("*.jaxexport"))) == 1
+    assert stored_programs.directory() is None
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass
+class Scaled:
+    """A pytree with data ``a`` and static data ``power`` and ``how`` (part of its tree structure)."""
+
+    a: jax.Array
+    power: int = dataclasses.field(metadata={"static": True})
+    how: object = dataclasses.field(default="sin", metadata={"static": True})
+
+
+def _powered(x: Scaled):
+    y = x.a**x.power
+    return jnp.sin(y) if x.how == "sin" else x.how(y)
+
+
+def test_the_structure_of_the_arguments_is_in_the_key(tmp_path):
+    """Static data of the arguments' tree (a filter's settings, the likelihood's geometry) changes the program
+    under one tag: each value gets its own stored program, never another's; static data that cannot be pickled
+    (a lambda) is not stored at all, unless the caller's tag names it (``key_structure=False``)."""
+    a = jnp.linspace(0.5, 1.5, 4, dtype=jnp.float32)
+    for power in (2, 3, 2):
+        s = StoredJit(_powered, "tag", folder=tmp_path)
+        _equal(s(Scaled(a, power)), jax.jit(_powered)(Scaled(a, power)))
+    assert len(list(tmp_path.glob("*.jaxexport"))) == 2
+    s = StoredJit(_powered, "tag", folder=tmp_path)
+    s(Scaled(a, 3))
+    assert (s.exported, s.loaded) == (0, 1)
+    s = StoredJit(_powered, "tag", folder=tmp_path)
+    _equal(s(Scaled(a, 2, lambda y: -y)), -(a**2))
+    assert (s.exported, s.loaded) == (0, 0) and len(list(tmp_path.glob("*.jaxexport"))) == 2
+    # a caller whose tag names the structure (key_structure=False) stores it all the same
+    s = StoredJit(_powered, "tag naming the lambda", folder=tmp_path, key_structure=False)
+    _equal(s(Scaled(a, 2, lambda y: -y)), -(a**2))
+    assert (s.exported, s.loaded) == (1, 0) and len(list(tmp_path.glob("*.jaxexport"))) == 3
+
+
+def test_under_a_transformation_it_is_the_plain_jit(tmp_path):
+    """Called with tracers (inside the caller's vmap, jit or grad) it is jax.jit, inlined: nothing stored."""
+    s = StoredJit(lambda x: jnp.sin(x) * x, "tag", folder=tmp_path)
+    x = jnp.linspace(0.0, 1.0, 6, dtype=jnp.float32).reshape(2, 3)
+    np.testing.assert_array_equal(
+        np.asarray(jax.vmap(s)(x)), np.asarray(jax.vmap(jax.jit(lambda x: jnp.sin(x) * x))(x))
+    )
+    g = jax.grad(lambda v: jnp.sum(s(v)))(x[0])
+    np.testing.assert_allclose(np.asarray(g), np.asarray(jnp.sin(x[0]) + x[0] * jnp.cos(x[0])), rtol=1e-6)
+    assert (s.exported, s.loaded) == (0, 0) and not any(tmp_path.iterdir())
+
+
+_TRACES = []
+
+
+def _scaled_sum(x, y=None, n: int = 2):
+    _TRACES.append(n)
+    return jnp.cumsum(x * n) + (0.0 if y is None else y)
+
+
+def test_stored_jit_stores_a_module_function_inside_use_only(tmp_path):
+    """stored_jit: a module-level function with static arguments. Outside use it is jax.jit (with its static
+    arguments); inside, one stored program per static value, read back by a new wrapper (as by a new process)
+    without tracing, with the results of jax.jit bit for bit."""
+    x = jnp.arange(5, dtype=jnp.float32)
+    plain = jax.jit(_scaled_sum, static_argnames=("n",))
+    f = stored_programs.stored_jit(_scaled_sum, static_argnames=("n",))
+    assert f.__name__ == "_scaled_sum" and f.__doc__ == _scaled_sum.__doc__
+    _equal(f(x, n=3), plain(x, n=3))
+    assert not any(tmp_path.iterdir())
+    with stored_programs.use(tmp_path) as folder:
+        _equal(f(x, None, 3), plain(x, n=3))  # the static argument given by position
+        _equal(f(x, y=x), plain(x, y=x))
+        assert len(list(folder.glob("*.jaxexport"))) == 2
+        del _TRACES[:]
+        again = stored_programs.stored_jit(_scaled_sum, static_argnames=("n",))
+        _equal(again(x, n=3), plain(x, n=3))
+        _equal(again(x, y=x), plain(x, y=x))
+        assert (
+            _TRACES == [] and again._cache_size() - again._jit._cache_size() == 2
+        )  # its two stored programs
+        _equal(jax.jit(lambda v: again(v, n=4))(x), plain(x, n=4))  # traced inside a caller: inlined
+        assert _TRACES == [4] and len(list(folder.glob("*.jaxexport"))) == 2
 
 
 def test_cache_size_counts_the_compiled_variants(tmp_path):

@@ -28,20 +28,31 @@ import bodytrack
 import common
 
 
-def first_frame(root: pathlib.Path, cache: pathlib.Path, out: pathlib.Path) -> float:
-    """Wall seconds of ``python -m jaxmocap.cli track sequenceB_2 --frames 0:1`` run in ``root`` (whose
-    ``jaxmocap`` package it imports) with the compilation cache in ``cache``."""
+def run_cli(root: pathlib.Path, cache: pathlib.Path, args: list[str]) -> float:
+    """Wall seconds, process start to exit, of ``python -m jaxmocap.cli ARGS`` run in ``root`` (whose ``jaxmocap``
+    package it imports) with the compilation cache in ``cache``."""
     env = dict(os.environ, JAXMOCAP_CACHE_DIR=str(cache), JAX_PLATFORMS="cpu")
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
     env.pop("PYTHONPATH", None)
-    cmd = [sys.executable, "-m", "jaxmocap.cli", "track", str(bodytrack.SEQ), "--out", str(out)]
-    cmd += ["--frames", "0:1", "--quiet", "--overwrite"]
     t0 = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=root)
+    proc = subprocess.run(
+        [sys.executable, "-m", "jaxmocap.cli", *args], capture_output=True, text=True, env=env, cwd=root
+    )
     wall = time.perf_counter() - t0
     if proc.returncode != 0:
-        raise RuntimeError(f"jaxmocap track ({root}) failed: {(proc.stderr or proc.stdout).strip()[-400:]}")
+        raise RuntimeError(
+            f"jaxmocap {args[0]} ({root}) failed: {(proc.stderr or proc.stdout).strip()[-400:]}"
+        )
     return wall
+
+
+def first_frame(root: pathlib.Path, cache: pathlib.Path, out: pathlib.Path) -> float:
+    """Wall seconds of ``python -m jaxmocap.cli track sequenceB_2 --frames 0:1`` (:func:`run_cli`)."""
+    return run_cli(
+        root,
+        cache,
+        ["track", str(bodytrack.SEQ), "--out", str(out), "--frames", "0:1", "--quiet", "--overwrite"],
+    )
 
 
 def checkout_at(rev: str, into: pathlib.Path) -> pathlib.Path:

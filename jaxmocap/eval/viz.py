@@ -14,7 +14,6 @@ and use matplotlib's object API with the Agg canvas (no display, no global pyplo
 from __future__ import annotations
 
 import contextlib
-import functools
 import os
 import pathlib
 from collections.abc import Mapping, Sequence
@@ -26,6 +25,7 @@ import numpy as np
 
 from jaxmocap.geometry import body as body_mod
 from jaxmocap.geometry import camera, flesh
+from jaxmocap.stored_programs import stored_jit
 
 __all__ = [
     "SKELETON",
@@ -63,6 +63,11 @@ _JOINT = (40, 40, 230)
 _TRUTH = (255, 255, 255)
 
 
+#: :func:`jaxmocap.geometry.camera.project` compiled: called per frame of an overlay video, eagerly it would
+#: dispatch its ~40 operations one by one
+_project = jax.jit(camera.project)
+
+
 def _own_view(rig: camera.Rig, Q: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
     """Project ``Q (V, M, 3)`` — view ``v``'s points through camera ``v`` — to ``uv (V, M, 2)``, depth ``(V, M)``."""
     uv, z = camera.project_with_depth(rig, Q)  # (V_pts, V_cam, M, ...)
@@ -71,7 +76,7 @@ def _own_view(rig: camera.Rig, Q: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray
     return uv, z
 
 
-@functools.partial(jax.jit, static_argnames=("k",))
+@stored_jit(static_argnames=("k",))
 def overlay_geometry(model: body_mod.BodyModel, rig: camera.Rig, x: jnp.ndarray, k: int = 10) -> dict:
     """Projected outline of the model in state ``x (D,)`` in every view.
 
@@ -168,7 +173,7 @@ def overlay_image(
     if truth_joints is not None:
         t = np.asarray(truth_joints, np.float64)
         ok = np.all(np.isfinite(t), axis=-1)
-        uv = np.asarray(camera.project(rig, jnp.asarray(np.where(ok[:, None], t, 0.0), jnp.float32)))
+        uv = np.asarray(_project(rig, jnp.asarray(np.where(ok[:, None], t, 0.0), jnp.float32)))
         truth_uv = np.where(ok[None, :, None], uv, np.nan)
     return [
         draw_overlay(im, g, v, model.joint_names, None if truth_uv is None else truth_uv[v])
@@ -184,7 +189,7 @@ def person_crops(
     to ``height`` pixels (bicubic)."""
     J = np.asarray(joints, np.float64)
     J = J[np.all(np.isfinite(J), axis=1)]
-    uv = np.asarray(camera.project(rig, jnp.asarray(J, jnp.float32)), np.float64)  # (V, J, 2)
+    uv = np.asarray(_project(rig, jnp.asarray(J, jnp.float32)), np.float64)  # (V, J, 2)
     out = []
     for v, im in enumerate(images):
         h_img, w_img = im.shape[:2]

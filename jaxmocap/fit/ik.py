@@ -57,6 +57,7 @@ from jaxmocap.geometry import camera, kinematics
 from jaxmocap.geometry.body import EVAL_JOINTS, BodyModel
 from jaxmocap.geometry.body import trunk_segments as body_trunk
 from jaxmocap.io.mocap import matrix_to_euler
+from jaxmocap.stored_programs import stored_jit
 
 _MARGIN = 0.98  # start points are pulled inside this fraction of each bounded range
 _FULL_TURN = 2.0 * math.pi - 1e-3
@@ -169,7 +170,7 @@ def _set_root(model: BodyModel, x: jnp.ndarray, R: jnp.ndarray, t: jnp.ndarray) 
     return x
 
 
-@jax.jit
+@stored_jit
 def root_init(model: BodyModel, targets: jnp.ndarray, weights: jnp.ndarray | None = None) -> jnp.ndarray:
     """A start state: the rest pose with the root placed by Procrustes on the joints of the trunk.
 
@@ -381,12 +382,14 @@ def fit_pose(
     )
 
 
-@functools.partial(jax.jit, static_argnames=("maxiter",))
+@stored_jit(static_argnames=("maxiter",))
 def _solve(model, targets, weights, x0, prior_weight, free, rest, tol, maxiter) -> PoseFit:
     """The Levenberg–Marquardt core of :func:`fit_pose`, compiled once per model structure and array shapes.
 
     Called from the un-jitted wrappers, the compiled solver is shared by :func:`fit_pose` and
-    :func:`from_head_hands` (and by their vmapped forms); inside a caller's ``jit`` it is simply inlined.
+    :func:`from_head_hands` (and by their vmapped forms); inside a caller's ``jit`` it is simply inlined. A run of
+    the command line keeps its trace on disk (:func:`jaxmocap.stored_programs.stored_jit`): the first pose of a
+    warm run does not trace it again.
     """
     Q, w = _clean(targets, weights)
     u0 = from_state(model, x0)

@@ -188,8 +188,13 @@ class ParsecSetup:
         init = StoredJit(
             lambda k, x, ob: weighted_start(filt, self._loglik, k, x, std, ob),
             "weighted start " + self.program_tag(),
+            key_structure=not self.tag_names_arguments,
         )
         return init(key, _f32(x0), obs)
+
+    #: the tag names the static structure of the step's arguments as well (the filter holds the likelihood, a
+    #: closure over the body and the cameras, which the tag hashes): the structure stays out of the key
+    tag_names_arguments = True
 
     def program_tag(self) -> str:
         """What the run's programs close over (:mod:`jaxmocap.stored_programs`): the body's dimensions, the

@@ -22,6 +22,7 @@ from jaxmocap.geometry import body as body_mod
 from jaxmocap.geometry import camera
 from jaxmocap.io import export
 from jaxmocap.io.keypoints import KEYPOINT_INDEX
+from jaxmocap.stored_programs import stored_jit
 
 __all__ = [
     "KEYPOINT_OF",
@@ -102,15 +103,16 @@ def keypoint_pose(
     frame's ``depth`` maps — one per view, metres, 0 = none — when given). None with fewer than four joints."""
     kp = np.asarray(keypoints, np.float64)
     rj = rig.to_jax(jnp.float32)
-    targets = {}
-    for name, k in KEYPOINT_OF.items():
-        c = np.where(kp[:, k, 2] > 0.1, kp[:, k, 2], 0.0)
-        if np.sum(c > 0) >= 2:
-            X = np.asarray(
-                camera.triangulate(rj, jnp.asarray(kp[:, k, :2], jnp.float32), jnp.asarray(c, jnp.float32))
-            )
-            if np.all(np.isfinite(X)):
-                targets[name] = X
+    # every joint in one call of one compiled program (NaN where fewer than two views detect it), not one call per
+    # joint: dispatches wait for the interpreter lock while the filter step is traced in the thread beside this
+    names_k = list(KEYPOINT_OF)
+    ks = [KEYPOINT_OF[n] for n in names_k]
+    c = np.where(kp[:, ks, 2] > 0.1, kp[:, ks, 2], 0.0).T  # (joints, V)
+    uv_k = np.ascontiguousarray(kp[:, ks, :2].transpose(1, 0, 2), np.float32)  # (joints, V, 2)
+    Xs = np.asarray(camera.triangulate(rj, uv_k, c.astype(np.float32)))  # float32, as the fit takes them
+    targets = {
+        n: Xs[i] for i, n in enumerate(names_k) if np.sum(c[i] > 0) >= 2 and np.all(np.isfinite(Xs[i]))
+    }
     if targets:  # a joint triangulated far from the others is a wrong detection or a match at a grazing angle
         centre = np.median(np.stack(list(targets.values())), axis=0)
         targets = {n: X for n, X in targets.items() if np.linalg.norm(X - centre) <= OUTLIER_M}
@@ -156,10 +158,11 @@ DEPTH_BEHIND_SURFACE = 0.1
 DEPTH_SIGMA = 0.05
 
 
-@jax.jit
+@stored_jit
 def _fit_from(model, rig, uv, w, x0):
     """One reprojection fit from ``x0`` (:func:`jaxmocap.fit.ik.fit_pose_2d`), its joints ``(J, 3)`` and its
-    weighted reprojection cost, compiled as one program (eager calls would compile every small operation)."""
+    weighted reprojection cost, compiled as one program (eager calls would compile every small operation), its
+    trace kept on disk by a run of the command line (:func:`jaxmocap.stored_programs.stored_jit`)."""
     xf = ik.fit_pose_2d(model, rig, uv, w, x0)
     X = ik.model_joints(model, xf)
     r = camera.project(rig, X) - jnp.nan_to_num(uv)

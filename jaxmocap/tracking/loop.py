@@ -5,8 +5,8 @@ is ``fold_in(key(seed), frame)`` (never carried), so that a resumed run reproduc
 constant-velocity prediction of the root (its translation, and by default its angles:
 ``TrackOptions.velocity_dofs``) with full turns of the heading taken out (:func:`unwind`), the filter step (jitted **once**, with the filter as an
 argument, so that its data — diffusion std, schedule values, the likelihood's cue weights and λ — are not constants
-of the program: ``trace_count`` stays 1; 0 when a setup with a ``program_tag``, PARSEC's, reads the traced step
-back from disk, :mod:`jaxmocap.stored_programs`),
+of the program: ``trace_count`` stays 1, or 0 when the run reads the traced step back from disk,
+:mod:`jaxmocap.stored_programs`; the summary's ``compilations`` counts both ways of making it: 1),
 track-loss detection and re-initialisation, and incremental outputs (:mod:`jaxmocap.io.export`) with a resume
 checkpoint (``resume.npz``, :class:`jaxmocap.tracking.run_folder.Checkpoints`: at most once a second, and on every
 way out; a run killed by SIGKILL is resumed from its last checkpoint and tracks the frames after it again, to the
@@ -148,7 +148,8 @@ class TrackingLoop:
     Subclasses build ``self.setup`` in their constructor; the setup's attributes (``model``, ``frames``,
     ``likelihood``, ``features``, ``cues``, ``num_particles``, ``layers``, ``std`` …) are read through the run.
     ``filter`` is built once the initial state is known; ``trace_count`` counts the traces of the filter step (0
-    when a setup's ``program_tag`` found the step stored on disk: :mod:`jaxmocap.stored_programs`).
+    when the step was found stored on disk: :mod:`jaxmocap.stored_programs`), ``step_programs`` the step programs
+    made, traced or read back (1 for a whole run: a new frame never makes another).
     ``compile_ahead``: compile the step while the first frame is initialised (module docstring);
     ``compiled_ahead``: whether the first step found it compiled that way.
     """
@@ -185,10 +186,22 @@ class TrackingLoop:
             return new, info, (None if joints_of is None else joints_of(info.estimate))
 
         # the filter (a pytree: its arrays, schedule values and likelihood leaves are data) is an argument, not a
-        # constant of the program: a filter that differs only in data reuses the compiled step. A setup whose
-        # step is determined by a tag (``program_tag``) keeps the traced step on disk (:mod:`jaxmocap.stored_programs`)
+        # constant of the program: a filter that differs only in data reuses the compiled step. Inside
+        # ``stored_programs.use`` (the command line, ``jaxmocap.track``) the traced step is kept on disk under
+        # the setup's ``program_tag`` — what the step closes over besides its arguments — and the arguments'
+        # structure (:mod:`jaxmocap.stored_programs`); a setup without a tag traces every run
         tag = getattr(self.setup, "program_tag", None)
-        self._jitted = self._step = StoredJit(step, None if tag is None else "step " + tag())
+        tag = None if tag is None else tag()
+        self._jitted = self._step = StoredJit(
+            step,
+            None if tag is None else "step " + tag,
+            key_structure=not getattr(self.setup, "tag_names_arguments", False),
+        )
+
+    @property
+    def step_programs(self) -> int:
+        """The filter step's programs this run made: traced, or read back from disk."""
+        return self.trace_count + self._step.loaded
 
     def __getattr__(self, name):
         if name == "setup":
@@ -630,7 +643,8 @@ class TrackingLoop:
             "interrupted": stopped,
             "error": None if error is None or stopped else str(error),
             "resumed_at": ending["resumed_at"],
-            "compilations": self.trace_count,
+            "compilations": self.step_programs,
+            "step_traces": self.trace_count,
             "compile_s": self.compile_s,
             "compiled_after_first_frame": stats["compiled_after_first_frame"],
             "model": model.name,

@@ -21,6 +21,8 @@ over more than a tag would safely name), ``description()`` and the flags ``track
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import pickle
 
 import jax
 import jax.numpy as jnp
@@ -608,6 +610,17 @@ class TrackSetup:
     def output_state(self, x: np.ndarray) -> np.ndarray:
         """The state written for the filter's estimate ``x`` (the same state)."""
         return x
+
+    def program_tag(self) -> str | None:
+        """What the filter step closes over besides its arguments (:mod:`jaxmocap.stored_programs`): the
+        refinement (:meth:`refine_step`) and the body model (:meth:`estimate_joints`), as the SHA-256 of their
+        pickle; the filter, the likelihood's geometry among its static data, is an argument and keyed by its
+        structure. None (the step is traced every run) when they cannot be pickled."""
+        try:
+            blob = pickle.dumps((type(self).__qualname__, self.refiner, self.model), protocol=5)
+        except Exception:  # noqa: BLE001 (traced as usual)
+            return None
+        return hashlib.sha256(blob).hexdigest()
 
     def estimate_joints(self, est: jnp.ndarray) -> jnp.ndarray:
         """``(J, 3)`` joints of the filter's estimate ``est (D,)`` (traceable: computed in the compiled step);

@@ -32,7 +32,8 @@ class Tracker(TrackingLoop):
     Attributes after construction (those of its :class:`~jaxmocap.tracking.setup.TrackSetup`, ``setup``):
     ``model``, ``likelihood``, ``cues`` (``(name, weight)``), ``frames`` (the input frame numbers to track),
     ``features``, ``num_particles``, ``layers``, ``std``; ``filter`` once the run has started; ``trace_count``
-    (compilations of the filter step).
+    (traces of the filter step: 0 when a warm run read it back from disk) and ``step_programs`` (traced or read
+    back: 1).
     """
 
     def __init__(

@@ -149,8 +149,8 @@ def test_parsec_rejects_other_filters(tmp_path, capsys):
 @pytest.mark.slow
 def test_a_second_run_reads_its_programs_back(tmp_path):
     """With the compilation cache on, the first run stores its traced weighted start and filter step
-    (jaxmocap.stored_programs) and a second process calls them without tracing the step (``compilations`` 0):
-    the same poses bit for bit, and the same as a run with the cache off."""
+    (jaxmocap.stored_programs) and a second process calls them without tracing the step (``step_traces`` 0, one
+    step program all the same): the same poses bit for bit, and the same as a run with the cache off."""
     import os
     import subprocess
     import sys
@@ -168,7 +168,7 @@ def test_a_second_run_reads_its_programs_back(tmp_path):
         )
         assert proc.returncode == 0, proc.stderr[-3000:]
         summary = json.loads((tmp_path / name / "diagnostics.json").read_text())["summary"]
-        return export.load_poses(tmp_path / name)["state"], summary["compilations"]
+        return export.load_poses(tmp_path / name)["state"], (summary["step_traces"], summary["compilations"])
 
     first, n1 = run("first", str(cache))
     assert (
@@ -176,6 +176,6 @@ def test_a_second_run_reads_its_programs_back(tmp_path):
     )  # the weighted start and the step
     second, n2 = run("second", str(cache))
     off, n3 = run("off", "off")
-    assert (n1, n2, n3) == (1, 0, 1)
+    assert (n1, n2, n3) == ((1, 1), (0, 1), (1, 1))
     np.testing.assert_array_equal(first, second)
     np.testing.assert_array_equal(first, off)

@@ -79,17 +79,18 @@ def test_reprojection_fit_of_exact_detections(walk):
 
 
 def test_a_joint_triangulated_far_away_is_left_out(walk, monkeypatch):
-    """One wrong detection — the left ankle in the second view 1 px beside the first view's, a disparity of almost
-    nothing, which triangulates the ankle 47–72 m away — over three noise draws: the first pose stays within
+    """One wrong detection — the left ankle in the second view 0.5 px beside the first view's, a disparity of
+    almost nothing, which triangulates the ankle 61–117 m away — over three noise draws: the first pose stays within
     0.25 m of the truth on average (measured 0.13–0.19 m); without the outlier rule the whole body follows the
-    ankle (measured 2.8–9.7 m)."""
+    ankle (measured 7.7–10.1 m). (At 1 px the ankle lands 46–72 m away and whether the fit without the rule follows
+    it depends on float32 rounding: for one draw it did with one order of operations, not with another.)"""
     model, X = walk
     rig = _stereo_rig(X[0])
     ankle = EVAL_JOINTS.index("left_ankle")
     rules = (init.OUTLIER_M, np.inf)
     for seed in (1, 2, 3):
         kp = _detections(rig, X, seed)
-        kp[1, ankle, 0] = kp[0, ankle, 0] + 1.0
+        kp[1, ankle, 0] = kp[0, ankle, 0] + 0.5
         err = {}
         for rule in rules:
             monkeypatch.setattr(init, "OUTLIER_M", rule)

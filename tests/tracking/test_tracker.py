@@ -3,6 +3,7 @@ a real CMU walk (synthesise → track → evaluate), track-loss detection and re
 
 import json
 import os
+import sys
 from typing import NamedTuple
 
 import jax
@@ -10,13 +11,16 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxmocap import stored_programs
 from jaxmocap.eval import metrics
 from jaxmocap.filters.factory import make_filter, partition_groups
-from jaxmocap.geometry import body
+from jaxmocap.fit import ik
+from jaxmocap.geometry import body, camera
 from jaxmocap.io import bvh, export
 from jaxmocap.io.sources import SequenceSource
 from jaxmocap.likelihood.coverage import coverage_energy
 from jaxmocap.synth import generate as synth
+from jaxmocap.tracking import init as init_mod
 from jaxmocap.tracking import smoothing, tracker
 from jaxmocap.tracking.options import (
     FILTERS,
@@ -260,6 +264,53 @@ def test_compiled_once_and_outputs(sequence, tracked):
         "plots/quality.png",
     ):
         assert (out / name).stat().st_size > 0
+
+
+def _stored_functions():
+    """The package's functions kept by ``stored_programs.stored_jit`` (the first pose's fits, the overlays' …)."""
+    found = {}
+    for name, mod in list(sys.modules.items()):
+        if name.startswith("jaxmocap"):
+            for v in vars(mod).values():
+                if isinstance(v, stored_programs._StoredFunction):
+                    found[id(v)] = v
+    return list(found.values())
+
+
+@pytest.mark.slow
+def test_a_warm_run_reads_its_traced_programs_back(sequence, tmp_path):
+    """As the command line runs (inside ``stored_programs.use``): the first run stores its traced filter step and
+    the programs of its first pose (triangulation, IK fits); a second run of the configuration (a new Tracker,
+    this process's stored programs forgotten: as in a new process) traces none of them — ``step_traces`` 0, one
+    step program all the same — and tracks the same poses bit for bit, which are those of a run outside ``use``
+    (plain ``jax.jit``)."""
+    opts = TrackOptions(particles=30, layers=2, seed=0, frames="0:3", init="ik", smooth="none")
+    cache = tmp_path / "cache"
+
+    def run(name, folder):
+        for fn in _stored_functions():
+            fn._stored.clear()
+        with stored_programs.use(folder):
+            r = tracker.Tracker(SequenceSource(sequence), tmp_path / name, opts, quiet=True)
+            summary = r.run()
+        fits = [s for fn in _stored_functions() for s in fn._stored.values()]
+        return r, summary, fits, export.load_poses(tmp_path / name)["state"]
+
+    first, s1, fits1, poses1 = run("first", cache)
+    assert (first.trace_count, s1["compilations"], s1["step_traces"]) == (1, 1, 1)
+    assert {ik._solve, ik.root_init, init_mod._fit_from, camera.triangulate} <= set(_stored_functions())
+    assert len(fits1) >= 4 and all(f.exported >= 1 and f.loaded == 0 for f in fits1)
+    stored = sorted((cache / stored_programs.FOLDER).glob("*.jaxexport"))
+    assert len(stored) == 1 + sum(f.exported for f in fits1)  # the step and the others
+    second, s2, fits2, poses2 = run("second", cache)
+    assert (second.trace_count, s2["compilations"], s2["step_traces"]) == (0, 1, 0)
+    assert sorted(f.loaded for f in fits2) == sorted(f.exported for f in fits1)
+    assert all(f.exported == 0 for f in fits2)
+    assert sorted((cache / stored_programs.FOLDER).glob("*.jaxexport")) == stored
+    plain, s3, fits3, poses3 = run("plain", None)
+    assert (plain.trace_count, s3["compilations"], fits3) == (1, 1, [])
+    np.testing.assert_array_equal(poses2, poses1)
+    np.testing.assert_array_equal(poses3, poses1)
 
 
 class _Blanked:
