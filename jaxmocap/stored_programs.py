@@ -203,7 +203,12 @@ class StoredJit:
         else:
             self.loaded += 1
         exp, out_tree = found
-        return jax.jit(exp.call), out_tree
+        # the exported program runs on one device: its arguments placed there explicitly, so that the program
+        # lowered ahead from shapes (``lower`` with ``jax.ShapeDtypeStruct``) is the one a call with committed
+        # arrays (outputs of other programs) lowers to; left unspecified, such arguments add their sharding to
+        # the module, another program to compile (the tracker's step compiled twice in a cold run: 2 × 17–20 s)
+        one = jax.sharding.SingleDeviceSharding(jax.devices()[0])
+        return jax.jit(exp.call, in_shardings=one), out_tree
 
     def _export(self, in_tree, leaves):
         trees = []

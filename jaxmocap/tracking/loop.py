@@ -230,6 +230,15 @@ class TrackingLoop:
         args = make(key, tobs)
         if args is None:
             return
+        one = jax.sharding.SingleDeviceSharding(
+            _device()
+        )  # the state the step gets: committed (see the loop)
+        args = (
+            args[0],
+            jax.tree.map(
+                lambda s: jax.ShapeDtypeStruct(s.shape, s.dtype, weak_type=s.weak_type, sharding=one), args[1]
+            ),
+        )
 
         def work():
             try:
@@ -381,7 +390,9 @@ class TrackingLoop:
             setup.set_references(x0, pending[0])
             self._make_filter(x0)
             t0 = frames[start]
-            state = setup.start(self.filter, self._key(t0, 1), x0, spread, pending[0])
+            state = jax.device_put(
+                setup.start(self.filter, self._key(t0, 1), x0, spread, pending[0]), _device()
+            )
             self._compile(t0, state, pending[0])
             p.update(start=start, pending=pending, skipped=skipped, x0=x0, how=how, state=state)
             p["loss"] = LossTracker(o, x0)
@@ -520,6 +531,11 @@ class TrackingLoop:
                 if len(hist) == 2 and hist[0][0] == t - 2 and hist[1][0] == t - 1 and setup.velocity > 0:
                     step = angle_difference(hist[1][1], hist[0][1], circular)
                     v = np.where(moving, step, 0.0) * setup.velocity
+                # the state committed to the device on every frame (a no-op for arrays already there): the first
+                # frame's comes from the start or a re-initialisation, later ones from the step, and a stored step
+                # (an exported program) returns committed arrays, which a program lowers differently from
+                # uncommitted ones; so predict, and the step compiled ahead from shapes, see one kind of argument
+                state = jax.device_put(state, _device())
                 state = state._replace(
                     particles=predict(state.particles, jax.device_put(v.astype(dt)), circular_dev)
                 )
@@ -755,6 +771,11 @@ def predict(particles: jnp.ndarray, step: jnp.ndarray, circular: jnp.ndarray) ->
     where none), then :func:`unwind`; one compiled program, the same on every frame (an eager update would compile
     its operations on the first frame that has a velocity)."""
     return unwind(particles + step, circular)
+
+
+def _device():
+    """The device the loop's state lives on (the default one)."""
+    return jax.devices()[0]
 
 
 class _Failed:
