@@ -147,6 +147,40 @@ def package_at(rev: str, module: str):
         sys.path.remove(str(root))
 
 
+def checkout_at(rev: str, into: pathlib.Path) -> pathlib.Path:
+    """``jaxmocap/`` of git revision ``rev`` extracted into ``into``; returns ``into``."""
+    import subprocess
+
+    tar = subprocess.run(
+        ["git", "-C", str(ROOT), "archive", rev, "jaxmocap"], check=True, capture_output=True
+    ).stdout
+    into.mkdir(parents=True)
+    subprocess.run(["tar", "-x", "-C", str(into)], input=tar, check=True)
+    return into
+
+
+def run_cli(root: pathlib.Path, cache: pathlib.Path, args: list[str]) -> float:
+    """Wall seconds, process start to exit, of ``python -m jaxmocap.cli ARGS`` run in ``root`` (whose ``jaxmocap``
+    package it imports) with the compilation cache in ``cache``."""
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, JAXMOCAP_CACHE_DIR=str(cache), JAX_PLATFORMS="cpu")
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    env.pop("PYTHONPATH", None)
+    t0 = time.perf_counter()
+    proc = subprocess.run(
+        [sys.executable, "-m", "jaxmocap.cli", *args], capture_output=True, text=True, env=env, cwd=root
+    )
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise RuntimeError(
+            f"jaxmocap {args[0]} ({root}) failed: {(proc.stderr or proc.stdout).strip()[-400:]}"
+        )
+    return wall
+
+
 def track_options(items) -> dict:
     """``["velocity=0.8", "cues=foreground,keypoints:8"]`` → ``{"velocity": 0.8, "cues": "foreground,…"}``: fields
     of :class:`jaxmocap.tracking.options.TrackOptions` with their values converted to the field's type

@@ -211,6 +211,14 @@ SCRIPTS: dict[str, Script] = {
         env="JAX_PLATFORMS=cpu",
         slow=True,
     ),
+    "track_latency": Script(
+        "Warm start of jaxmocap track and jaxmocap demo against a revision",
+        "perf/track_latency.py",
+        "--rounds 5 --against 2e0d2d5 --out benchmarks/results/track_latency.md",
+        writes=("track_latency.md",),
+        env="JAX_PLATFORMS=cpu",
+        slow=True,
+    ),
     "compile_partitions": Script(
         "Compile time of the partitioned / hierarchical step",
         "perf/compile_partitions.py",

@@ -18,51 +18,21 @@ import argparse
 import os
 import pathlib
 import statistics
-import subprocess
 import sys
 import tempfile
-import time
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmarks/: the shared modules
 import bodytrack
 import common
 
 
-def run_cli(root: pathlib.Path, cache: pathlib.Path, args: list[str]) -> float:
-    """Wall seconds, process start to exit, of ``python -m jaxmocap.cli ARGS`` run in ``root`` (whose ``jaxmocap``
-    package it imports) with the compilation cache in ``cache``."""
-    env = dict(os.environ, JAXMOCAP_CACHE_DIR=str(cache), JAX_PLATFORMS="cpu")
-    env.pop("JAX_COMPILATION_CACHE_DIR", None)
-    env.pop("PYTHONPATH", None)
-    t0 = time.perf_counter()
-    proc = subprocess.run(
-        [sys.executable, "-m", "jaxmocap.cli", *args], capture_output=True, text=True, env=env, cwd=root
-    )
-    wall = time.perf_counter() - t0
-    if proc.returncode != 0:
-        raise RuntimeError(
-            f"jaxmocap {args[0]} ({root}) failed: {(proc.stderr or proc.stdout).strip()[-400:]}"
-        )
-    return wall
-
-
 def first_frame(root: pathlib.Path, cache: pathlib.Path, out: pathlib.Path) -> float:
-    """Wall seconds of ``python -m jaxmocap.cli track sequenceB_2 --frames 0:1`` (:func:`run_cli`)."""
-    return run_cli(
+    """Wall seconds of ``python -m jaxmocap.cli track sequenceB_2 --frames 0:1`` (:func:`common.run_cli`)."""
+    return common.run_cli(
         root,
         cache,
         ["track", str(bodytrack.SEQ), "--out", str(out), "--frames", "0:1", "--quiet", "--overwrite"],
     )
-
-
-def checkout_at(rev: str, into: pathlib.Path) -> pathlib.Path:
-    """``jaxmocap/`` of git revision ``rev`` extracted into ``into``; returns ``into``."""
-    tar = subprocess.run(
-        ["git", "-C", str(common.ROOT), "archive", rev, "jaxmocap"], check=True, capture_output=True
-    ).stdout
-    into.mkdir(parents=True)
-    subprocess.run(["tar", "-x", "-C", str(into)], input=tar, check=True)
-    return into
 
 
 def measure(rounds: int, against: str | None, log=print) -> str:
@@ -71,7 +41,7 @@ def measure(rounds: int, against: str | None, log=print) -> str:
         tmp = pathlib.Path(tmp)
         roots = {"this checkout": common.ROOT}
         if against:
-            roots[against] = checkout_at(against, tmp / "rev")
+            roots[against] = common.checkout_at(against, tmp / "rev")
         names = list(roots)
         cold = {}
         for n in names:

@@ -31,10 +31,8 @@ import sys
 import tempfile
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmarks/: the shared modules
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 import bodytrack
 import common
-from parsec_latency import checkout_at, run_cli
 
 
 def make_sequence(folder: pathlib.Path) -> pathlib.Path:
@@ -71,12 +69,12 @@ def measure(rounds: int, against: str | None, commands: list[str], log=print) ->
         seq = make_sequence(tmp)
         roots = {"this checkout": common.ROOT}
         if against:
-            roots[against] = checkout_at(against, tmp / "rev")
+            roots[against] = common.checkout_at(against, tmp / "rev")
         names = list(roots)
 
         def once(n, c):
             i = names.index(n)
-            return run_cli(roots[n], tmp / f"cache{i}", command(c, seq, tmp / f"out{i}_{c}"))
+            return common.run_cli(roots[n], tmp / f"cache{i}", command(c, seq, tmp / f"out{i}_{c}"))
 
         cold = {(n, c): once(n, c) for c in commands for n in names}
         for (n, c), s in cold.items():
