@@ -201,7 +201,7 @@ class TrackingLoop:
     @property
     def step_programs(self) -> int:
         """The filter step's programs this run made: traced, or read back from disk."""
-        return self.trace_count + self._step.loaded
+        return self.trace_count + self._jitted.loaded
 
     def __getattr__(self, name):
         if name == "setup":
