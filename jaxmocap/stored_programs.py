@@ -44,6 +44,7 @@ import inspect
 import os
 import pathlib
 import pickle
+import threading
 from collections.abc import Callable, Iterator
 
 import jax
@@ -330,7 +331,9 @@ def _write(path: pathlib.Path, exp, out_tree) -> None:
         tree = pickle.dumps(out_tree)
         data = _MAGIC + len(tree).to_bytes(8, "little") + tree + bytes(exp.serialize())
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        # one temporary name per process and thread: two threads of a run (the step compiled ahead, the
+        # re-initialisation warmed) may store the same program at once
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
         try:
             tmp.write_bytes(data)
             os.replace(tmp, path)

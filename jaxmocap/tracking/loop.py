@@ -230,9 +230,8 @@ class TrackingLoop:
         args = make(key, tobs)
         if args is None:
             return
-        one = jax.sharding.SingleDeviceSharding(
-            _device()
-        )  # the state the step gets: committed (see the loop)
+        # the state the step gets is committed to the device (see the frame loop): lowered with that placement
+        one = jax.sharding.SingleDeviceSharding(_device())
         args = (
             args[0],
             jax.tree.map(

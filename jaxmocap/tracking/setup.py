@@ -12,10 +12,10 @@ The frame loop (:mod:`jaxmocap.tracking.loop`) reads these hooks of a setup: ``o
 ``initial_state(t, masks, fd)``, ``set_references(x0, obs)``, ``make_filter(x0)``, ``start(filter, key, x0,
 spread, obs)``, ``detection(fd, masks, last_good)``, ``reinit_mean(fd, masks, last_good)``, ``output_state(x)``,
 ``joints(x)``, optionally ``estimate_joints(est)`` and ``refine_step(state, info, tobs)`` (traced into the step:
-:mod:`jaxmocap.tracking.refine`), ``program_tag()`` (a string fixing everything the step closes over: the step is
-then kept on disk, :mod:`jaxmocap.stored_programs`; PARSEC's setup has one, this one has none, as its step closes
-over more than a tag would safely name), ``description()`` and the flags ``track_loss`` / ``resumable`` /
-``velocity``.
+:mod:`jaxmocap.tracking.refine`), ``program_tag()`` (a string fixing everything the step closes over besides its
+arguments, whose structure is keyed by itself: the step is then kept on disk inside ``stored_programs.use``,
+:mod:`jaxmocap.stored_programs`; here the refinement and the body model, PARSEC's names its arguments too:
+``tag_names_arguments``), ``description()`` and the flags ``track_loss`` / ``resumable`` / ``velocity``.
 """
 
 from __future__ import annotations
