@@ -125,6 +125,11 @@ def _versions() -> str:
     return f"{_distributions()} jax {jax.__version__} backend {jax.default_backend()} {flags}"
 
 
+def _traced(leaves) -> bool:
+    """Whether any leaf is a tracer (the call is inside a caller's ``jit``, ``vmap`` or ``grad``)."""
+    return any(isinstance(x, jax.core.Tracer) for x in leaves)
+
+
 def _structure(in_tree) -> str | None:
     """SHA-256 of the pickled argument structure (its static data included), None when it cannot be pickled."""
     try:
@@ -157,7 +162,8 @@ class StoredJit:
         self.key_structure = key_structure
         self.folder = None if folder is None else pathlib.Path(folder)
         self._jit = jax.jit(fn)
-        self._programs: dict[str, tuple] = {}
+        # (folder, argument tree, abstract values) -> (jitted call, output tree), None for plain jit
+        self._programs: dict[tuple, tuple | None] = {}
         self.loaded = 0
         self.exported = 0
 
@@ -176,7 +182,7 @@ class StoredJit:
         if folder is None:
             return None
         leaves, in_tree = jax.tree.flatten(args)
-        if any(isinstance(x, jax.core.Tracer) for x in leaves):  # inside a caller's jit, vmap or grad
+        if _traced(leaves):  # inside a caller's jit, vmap or grad
             return None
         # the programs of this process by structure and abstract values (hashable, cheap): the text key and its
         # SHA-256 only for a new one, not on every frame's call
@@ -275,9 +281,7 @@ class _StoredFunction:
         return s
 
     def _plain(self, args, kwargs) -> bool:
-        if directory() is None:
-            return True
-        return any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves((args, kwargs)))
+        return directory() is None or _traced(jax.tree.leaves((args, kwargs)))
 
     def __call__(self, *args, **kwargs):
         if self._plain(args, kwargs):

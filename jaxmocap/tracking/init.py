@@ -110,9 +110,7 @@ def keypoint_pose(
     c = np.where(kp[:, ks, 2] > 0.1, kp[:, ks, 2], 0.0).T  # (joints, V)
     uv_k = np.ascontiguousarray(kp[:, ks, :2].transpose(1, 0, 2), np.float32)  # (joints, V, 2)
     Xs = np.asarray(camera.triangulate(rj, uv_k, c.astype(np.float32)))  # float32, as the fit takes them
-    targets = {
-        n: Xs[i] for i, n in enumerate(names_k) if np.sum(c[i] > 0) >= 2 and np.all(np.isfinite(Xs[i]))
-    }
+    targets = {n: Xs[i] for i, n in enumerate(names_k) if np.all(np.isfinite(Xs[i]))}
     if targets:  # a joint triangulated far from the others is a wrong detection or a match at a grazing angle
         centre = np.median(np.stack(list(targets.values())), axis=0)
         targets = {n: X for n, X in targets.items() if np.linalg.norm(X - centre) <= OUTLIER_M}
