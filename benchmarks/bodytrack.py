@@ -200,6 +200,30 @@ def side_by_side(jobs: dict, rounds: int, log=print) -> list[dict]:
     return rows
 
 
+def revisions_side_by_side(rounds: int, names: list[str], jobs: dict, extra=None, log=print) -> list[dict]:
+    """Interleaved A/B of checkouts: every round runs both conditions of :data:`CONDITIONS` (the second with
+    :func:`busy`), in each every job of ``jobs`` (job name → ``fn(checkout name) -> seconds``) for every checkout
+    of ``names``, the order alternating by round and condition, then ``extra()`` (None, or ``() -> {name:
+    seconds}``: e.g. bodytrack's own run) once per condition. Returns dicts ``round, condition, command (the job),
+    load (1-min load average before the job), <checkout>: seconds …`` plus ``extra``'s entries."""
+    rows = []
+    for r in range(rounds):
+        for ci, cond in enumerate(CONDITIONS):
+            with busy(ci > 0):
+                order = names if (r + ci) % 2 == 0 else names[::-1]
+                for job, fn in jobs.items():
+                    load = os.getloadavg()[0]
+                    got = {n: fn(n) for n in order}
+                    if extra is not None:
+                        got.update(extra())
+                    rows.append(dict(round=r, condition=cond, command=job, load=load, **got))
+                    log(
+                        f"round {r} {cond:16s} {job:6s} load {load:5.2f} "
+                        + " ".join(f"{k} {v:.2f}" for k, v in got.items())
+                    )
+    return rows
+
+
 def table(rows: list[dict]) -> str:
     """Markdown: the median ratio (bodytrack / jaxmocap, above 1 = jaxmocap faster) per measurement and
     condition with every round's ratio, then every round with its load and state (idle only below load 1.0)."""

@@ -15,7 +15,6 @@ one frame, with the 1-minute load average. ``REV``'s package is ``git archive RE
 from __future__ import annotations
 
 import argparse
-import os
 import pathlib
 import statistics
 import sys
@@ -47,22 +46,17 @@ def measure(rounds: int, against: str | None, log=print) -> str:
         for n in names:
             cold[n] = first_frame(roots[n], tmp / f"cache{names.index(n)}", tmp / f"out{names.index(n)}")
             log(f"cold {n}: {cold[n]:.1f} s")
-        rows = []
-        for r in range(rounds):
-            for ci, cond in enumerate(bodytrack.CONDITIONS):
-                with bodytrack.busy(ci > 0):
-                    load = os.getloadavg()[0]
-                    order = names if (r + ci) % 2 == 0 else names[::-1]
-                    got = {}
-                    for n in order:
-                        i = names.index(n)
-                        got[n] = first_frame(roots[n], tmp / f"cache{i}", tmp / f"out{i}")
-                    got["bodytrack"] = bodytrack.bodytrack_run(4000, 5, frames=1, out=out_build)[1]
-                    rows.append(dict(round=r, condition=cond, load=load, **got))
-                    log(
-                        f"round {r} {cond:16s} load {load:5.2f} "
-                        + " ".join(f"{k} {v:.2f}" for k, v in got.items())
-                    )
+        rows = bodytrack.revisions_side_by_side(
+            rounds,
+            names,
+            {
+                "parsec": lambda n: first_frame(
+                    roots[n], tmp / f"cache{names.index(n)}", tmp / f"out{names.index(n)}"
+                )
+            },
+            extra=lambda: {"bodytrack": bodytrack.bodytrack_run(4000, 5, frames=1, out=out_build)[1]},
+            log=log,
+        )
 
     this = names[0]
     lines = [

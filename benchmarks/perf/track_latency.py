@@ -24,7 +24,7 @@ jaxmocap.cli`` imports it).
 from __future__ import annotations
 
 import argparse
-import os
+import functools
 import pathlib
 import statistics
 import sys
@@ -79,19 +79,9 @@ def measure(rounds: int, against: str | None, commands: list[str], log=print) ->
         cold = {(n, c): once(n, c) for c in commands for n in names}
         for (n, c), s in cold.items():
             log(f"cold {c} {n}: {s:.1f} s")
-        rows = []
-        for r in range(rounds):
-            for ci, cond in enumerate(bodytrack.CONDITIONS):
-                with bodytrack.busy(ci > 0):
-                    for c in commands:
-                        load = os.getloadavg()[0]
-                        order = names if (r + ci) % 2 == 0 else names[::-1]
-                        got = {n: once(n, c) for n in order}
-                        rows.append(dict(round=r, condition=cond, command=c, load=load, **got))
-                        log(
-                            f"round {r} {cond:16s} {c:5s} load {load:5.2f} "
-                            + " ".join(f"{k} {v:.2f}" for k, v in got.items())
-                        )
+        rows = bodytrack.revisions_side_by_side(
+            rounds, names, {c: functools.partial(once, c=c) for c in commands}, log=log
+        )
 
     this = names[0]
     lines = [
