@@ -254,7 +254,8 @@ SCRIPTS: dict[str, Script] = {
     "grad_cost": Script(
         "Value and gradient of the tracker's likelihood in forward evaluations (the gradient filters' cost)",
         "perf/grad_cost.py",
-        "--general --against 628bb34~1 --out benchmarks/results/grad_cost.md",
+        "--models full25 upper14 --cues 'track default' 'keypoints + silhouette' foreground edge_distance "
+        "coverage keypoints --rounds 7 --general --against b961c58 --out benchmarks/results/grad_cost.md",
         writes=("grad_cost.md",),
         slow=True,
     ),

@@ -29,8 +29,9 @@ same particles, in the same process:
                                         [--rounds 9]
                                         [--general] [--against REV] [--out benchmarks/results/grad_cost.md] [--quick]
 
-``--against REV`` adds, on the default set, the value and gradient of the ``jaxmocap`` package at git revision
-``REV`` (:func:`common.package_at`), timed in the same rounds, with the per-round ratios of this checkout's to it.
+``--against REV`` adds, on every row, the forward pass and the value and gradient of the ``jaxmocap`` package at
+git revision ``REV`` (:func:`common.package_at`), timed in the same rounds, with the per-round ratios of this
+checkout's to them (a change to the gradient path must not slow the forward one).
 """
 
 from __future__ import annotations
@@ -61,7 +62,9 @@ CUE_SETS = {
     "keypoints": "keypoints:4",
 }
 COMMAND = (
-    "python benchmarks/perf/grad_cost.py --general --against 628bb34~1 --out benchmarks/results/grad_cost.md"
+    "python benchmarks/perf/grad_cost.py --models full25 upper14 --cues 'track default' 'keypoints + silhouette' "
+    "foreground edge_distance coverage keypoints --rounds 7 --general --against b961c58 "
+    "--out benchmarks/results/grad_cost.md"
 )
 
 
@@ -128,8 +131,8 @@ def timed_rounds(compiled: dict, args: tuple, rounds: int, own_args: dict | None
 
 
 def row(seq, model: str, label: str, n: int, rounds: int, general: bool, against: str | None = None) -> dict:
-    """One row: medians, ratios, and with ``against`` the value and gradient at that revision (``before``) timed in
-    the same rounds, with its per-round ratios to this checkout's."""
+    """One row: medians, ratios, and with ``against`` the forward pass and the value and gradient at that revision
+    (``before_forward``, ``before``) timed in the same rounds, with their per-round ratios to this checkout's."""
     import numpy as np
 
     compiled, args = programs(seq, model, CUE_SETS[label], n, general)
@@ -137,6 +140,7 @@ def row(seq, model: str, label: str, n: int, rounds: int, general: bool, against
     if against is not None:
         at, own["before"] = programs(seq, model, CUE_SETS[label], n, False, "jaxmocap_at_rev")
         compiled["before"] = at["fast"]
+        compiled["before_forward"], own["before_forward"] = at["forward"], own["before"]
     t = timed_rounds(compiled, args, rounds, own)
     med = {k: float(np.median(v)) for k, v in t.items()}
     out = dict(model=model, cues=label, n=n, **{f"{k}_ms": v * 1e3 for k, v in med.items()})
@@ -144,24 +148,31 @@ def row(seq, model: str, label: str, n: int, rounds: int, general: bool, against
     if "general" in med:
         out["general_ratio"] = med["general"] / med["forward"]
     if "before" in med:
-        out["before_ratio"] = med["before"] / med["forward"]
-        per_round = np.asarray(t["fast"]) / np.asarray(t["before"])
-        out["now_over_before"] = (float(np.median(per_round)), float(per_round.min()), float(per_round.max()))
+        out["before_ratio"] = med["before"] / med["before_forward"]
+        for key, now, then in (
+            ("now_over_before", "fast", "before"),
+            ("forward_now_over_before", "forward", "before_forward"),
+        ):
+            per_round = np.asarray(t[now]) / np.asarray(t[then])
+            out[key] = (float(np.median(per_round)), float(per_round.min()), float(per_round.max()))
     return out
 
 
 def against_table(rows: list[dict]) -> list[str]:
     """The rows with a ``before`` program: both ratios to the forward pass and the per-round ratios now / before."""
     lines = [
-        "| model | cues | N | before ms | ÷ forward | now ms | ÷ forward | now ÷ before, median of rounds [range] |",
-        "|---|---|---|---|---|---|---|---|",
+        "| model | cues | N | before ms | ÷ its forward | now ms | ÷ forward | now ÷ before, median of rounds [range] "
+        "| forward: now ÷ before [range] |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         if "before_ms" in r:
             m, lo, hi = r["now_over_before"]
+            fm, flo, fhi = r["forward_now_over_before"]
             lines.append(
                 f"| {r['model']} | {r['cues']} | {r['n']} | {r['before_ms']:.2f} | {r['before_ratio']:.2f} | "
-                f"{r['fast_ms']:.2f} | {r['fast_ratio']:.2f} | **{m:.3f}** [{lo:.2f}–{hi:.2f}] |"
+                f"{r['fast_ms']:.2f} | {r['fast_ratio']:.2f} | **{m:.3f}** [{lo:.2f}–{hi:.2f}] | "
+                f"{fm:.3f} [{flo:.2f}–{fhi:.2f}] |"
             )
     return lines
 
@@ -195,7 +206,7 @@ def main(argv=None) -> str:
     ap.add_argument(
         "--against",
         metavar="REV",
-        help="also the value and gradient at git revision REV, on the track default set",
+        help="also the forward pass and the value and gradient at git revision REV, timed in the same rounds",
     )
     a = ap.parse_args(argv)
     if a.against:
@@ -210,8 +221,7 @@ def main(argv=None) -> str:
             for label in a.cues:
                 for n in a.particles:
                     general = a.general and label == "track default"
-                    before = a.against if label == "track default" else None
-                    rows.append(row(seq, model, label, n, a.rounds, general, before))
+                    rows.append(row(seq, model, label, n, a.rounds, general, a.against))
                     print(table(rows[-1:])[-1], flush=True)
     text = "\n".join(
         [
@@ -226,7 +236,8 @@ def main(argv=None) -> str:
     if a.against:
         text += (
             f"\n\n**This change against {a.against}** (its package imported beside this checkout's, "
-            "timed in the same rounds), value + gradient:\n\n" + "\n".join(against_table(rows))
+            "timed in the same rounds), value + gradient, and the forward pass:\n\n"
+            + "\n".join(against_table(rows))
         )
     print(text)
     if a.out is not None and not a.quick:

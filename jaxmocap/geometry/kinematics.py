@@ -480,23 +480,82 @@ def segment_runs(segment_of_point: Sequence[int] | np.ndarray) -> list[tuple[int
     return [(int(a), int(b), int(seg[a])) for a, b in zip(starts, stops, strict=True)]
 
 
-def apply_by_runs(A: jnp.ndarray, b: jnp.ndarray, points: jnp.ndarray, runs) -> list[jnp.ndarray]:
+def apply_by_runs(
+    A: jnp.ndarray, b: jnp.ndarray, points: jnp.ndarray, runs, adjoint: bool = False
+) -> list[jnp.ndarray]:
     """Affine maps of the frames applied to the points of each run: the three coordinates ``(..., P)`` of
     ``A_{s(p)} p + b_{s(p)}`` for ``A (..., S, 3, 3)``, ``b (..., S, 3)``, ``points (P, 3)`` and the runs of
-    :func:`segment_runs` (one broadcast per run and coordinate, concatenated; no per-point gather)."""
+    :func:`segment_runs` (one broadcast per run and coordinate, concatenated; no per-point gather).
+    ``adjoint``: :func:`affine_by_runs`.
+    """
+    pieces = affine_by_runs(A, b, points, runs, adjoint)
+    return [
+        pieces[0][i] if len(pieces) == 1 else jnp.concatenate([q[i] for q in pieces], -1) for i in range(3)
+    ]
+
+
+def affine_by_runs(A: jnp.ndarray, b: jnp.ndarray, points: jnp.ndarray, runs, adjoint: bool = False) -> tuple:
+    """:func:`apply_by_runs` before the concatenation: per run ``(start, stop, s)``, the three coordinates
+    ``(..., stop − start)`` of ``A_s p + b_s`` for the run's points.
+
+    ``adjoint=True`` differentiates it by its written-out reverse pass (reverse mode only: ``jax.jvp`` and
+    ``jacfwd`` are not defined through it): with ``ḡ_p`` the cotangent of point ``p``,
+    ``Ā_s = Σ_{p∈s} ḡ_p p_pᵀ``, ``b̄_s = Σ_{p∈s} ḡ_p`` (one sum over each run's points, the segments stacked once)
+    and ``p̄_p = A_{s(p)}ᵀ ḡ_p`` (summed over the leading axes of ``A``). The automatic transpose of the per-run
+    slices pads every slice of ``A`` back to its whole shape and adds the pads up, nine a run and coordinate.
+    """
+    runs = tuple((int(a), int(z), int(s)) for a, z, s in runs)
+    return _affine_runs_adjoint(A, b, points, runs) if adjoint else _affine_runs(A, b, points, runs)
+
+
+def _affine_runs(A, b, points, runs) -> tuple[tuple[jnp.ndarray, jnp.ndarray, jnp.ndarray], ...]:
     out = []
-    for i in range(3):
-        pieces = []
-        for start, stop, s in runs:
-            p = points[start:stop]
-            pieces.append(
+    for start, stop, s in runs:
+        p = points[start:stop]
+        out.append(
+            tuple(
                 A[..., s, i, 0, None] * p[:, 0]
                 + A[..., s, i, 1, None] * p[:, 1]
                 + A[..., s, i, 2, None] * p[:, 2]
                 + b[..., s, i, None]
+                for i in range(3)
             )
-        out.append(pieces[0] if len(pieces) == 1 else jnp.concatenate(pieces, -1))
-    return out
+        )
+    return tuple(out)
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=(3,))
+def _affine_runs_adjoint(A, b, points, runs):
+    return _affine_runs(A, b, points, runs)
+
+
+def _affine_runs_fwd(A, b, points, runs):
+    return _affine_runs(A, b, points, runs), (A, points)
+
+
+def _affine_runs_bwd(runs, res, cot):
+    A, points = res
+    lead, S = A.shape[:-3], A.shape[-3]
+    gA: dict[int, jnp.ndarray] = {}
+    gb: dict[int, jnp.ndarray] = {}
+    gp = jnp.zeros_like(points)
+    for (start, stop, s), g in zip(runs, cot, strict=True):
+        p1 = jnp.concatenate([points[start:stop], jnp.ones((stop - start, 1), points.dtype)], 1).T  # (4, L)
+        ab = jnp.sum(jnp.stack(g, -2)[..., :, None, :] * p1, -1)  # (..., 3, 4): [Ā_s | b̄_s]
+        a_s, b_s = ab[..., :3], ab[..., 3]
+        gA[s] = gA[s] + a_s if s in gA else a_s
+        gb[s] = gb[s] + b_s if s in gb else b_s
+        q = jnp.stack(
+            [sum(A[..., s, i, j, None] * g[i] for i in range(3)) for j in range(3)], -1
+        )  # (..., L, 3)
+        gp = gp.at[start:stop].add(q.reshape((-1,) + q.shape[-2:]).sum(0))
+    zA, zb = jnp.zeros(lead + (3, 3), A.dtype), jnp.zeros(lead + (3,), A.dtype)
+    GA = jnp.stack([gA.get(s, zA) for s in range(S)], -3)
+    Gb = jnp.stack([gb.get(s, zb) for s in range(S)], -2)
+    return GA, Gb, gp
+
+
+_affine_runs_adjoint.defvjp(_affine_runs_fwd, _affine_runs_bwd)
 
 
 def transform_points(
@@ -505,6 +564,7 @@ def transform_points(
     points: jnp.ndarray,
     segment_of_point: Sequence[int] | np.ndarray,
     by_runs: bool = True,
+    adjoint: bool = False,
 ) -> jnp.ndarray:
     """Move segment-local points to the world: ``X_p = R_{s(p)} p + t_{s(p)}``.
 
@@ -512,8 +572,8 @@ def transform_points(
       R: ``(..., S, 3, 3)`` segment rotations; t: ``(..., S, 3)`` translations.
       points: ``(P, 3)`` local coordinates (may be traced: body dimensions are differentiable).
       segment_of_point: ``P`` static segment indices.
-      by_runs: False takes each point's transform whatever the layout (a smaller program in reverse mode: the
-        slices of the runs become one pad and one sum per run and coordinate there).
+      by_runs: False takes each point's transform whatever the layout.
+      adjoint: the runs differentiated by their written-out reverse pass (:func:`affine_by_runs`; reverse mode only).
 
     Returns:
       ``(..., P, 3)``, computed per coordinate over ``(..., P)`` arrays.
@@ -525,7 +585,7 @@ def transform_points(
     """
     runs = segment_runs(segment_of_point)
     if by_runs and 0 < len(runs) <= MAX_RUNS and runs[-1][1] >= MIN_RUN_LENGTH * len(runs):
-        return jax.lax.optimization_barrier(jnp.stack(apply_by_runs(R, t, points, runs), -1))
+        return jax.lax.optimization_barrier(jnp.stack(apply_by_runs(R, t, points, runs, adjoint), -1))
     seg = np.asarray(segment_of_point, dtype=np.int32)
     Rp = R[..., seg, :, :]
     tp = t[..., seg, :]

@@ -318,10 +318,10 @@ class Likelihood:
         image_shape: tuple[int, int] | None = None,
         needs: frozenset | None = None,
         *,
-        by_runs: bool = True,
+        adjoint: bool = False,
     ) -> cues.Geometry:
         """Projected geometry of one particle from its :meth:`pose_stage` (see :meth:`geometry`; ``needs`` as
-        there; ``by_runs``: :meth:`_surface_geometry`)."""
+        there; ``adjoint``: :meth:`_surface_geometry`)."""
         needs = self._needs() if needs is None else needs
         V = self.rig.num_views
         g = {}
@@ -330,7 +330,7 @@ class Likelihood:
             if "joints_uv" in needs:
                 g["joints_uv"] = camera.project(self.rig, pose["joints"])
         if needs & {"surface", "surface_index", "facing"}:
-            g.update(self._surface_geometry(pose, image_shape, needs, by_runs))
+            g.update(self._surface_geometry(pose, image_shape, needs, adjoint))
         if "primitives" in pose:
             g["primitives"] = pose["primitives"]
         if needs & {"contour", "contour_index"}:
@@ -340,7 +340,7 @@ class Likelihood:
                 g["contour_index"], g["contour_inside"] = maps.nearest_index(quv, (V,) + tuple(image_shape))
         return cues.Geometry(**g)
 
-    def _surface_geometry(self, pose: dict, image_shape, needs, by_runs: bool = True) -> dict:
+    def _surface_geometry(self, pose: dict, image_shape, needs, adjoint: bool = False) -> dict:
         """The flesh-point fields of :class:`jaxmocap.likelihood.cues.Geometry` (world points, pixels, depth, facing, indices).
 
         Points stored segment by segment (at most :data:`jaxmocap.geometry.kinematics.MAX_RUNS` runs) go run by run: the
@@ -348,9 +348,9 @@ class Likelihood:
         camera coordinates (no world points in between, no per-point gather of transforms), every field of the run
         is computed from them, and each field is concatenated over the runs at the end, so that XLA materialises
         the final fields only (on its CPU backend a concatenation of intermediate coordinates was copied, and the
-        projection recomputed in every consumer). Other layouts, and ``by_runs=False``, project the world points
-        (the same values up to rounding; in reverse mode a program XLA compiles in 40 % less time, since the
-        slices of the runs become a pad and a sum per run and coordinate there).
+        projection recomputed in every consumer). Other layouts project the world points (the same values up to
+        rounding). ``adjoint=True`` (reverse mode only, :meth:`batch_value_and_grad`) differentiates the runs by
+        their written-out reverse pass (:func:`jaxmocap.geometry.kinematics.affine_by_runs`).
 
         Facing: ``n·(c_v − X) > 0`` in the segment frame, ``n_p·c_v,s(p) > n_p·p_p`` with ``c_v,s = R_sᵀ(c_v − t_s)``
         the camera centre in segment ``s``'s frame (``camera_local`` of :meth:`pose_stage`), and in front of it.
@@ -380,18 +380,19 @@ class Likelihood:
 
         cl = pose.get("camera_local")  # (V, S, 3)
         X = kinematics.transform_points(
-            R, t, p, self.surface.segment, by_runs
+            R, t, p, self.surface.segment, adjoint=adjoint
         )  # world points (dropped when unused)
         runs = kinematics.segment_runs(self.surface.segment)
-        if by_runs and len(runs) <= kinematics.MAX_RUNS:
+        if len(runs) <= kinematics.MAX_RUNS:
             Rc = jnp.asarray(self.rig.R, R.dtype)
             tc = jnp.asarray(self.rig.t, R.dtype)
             # (sums of three products written out: XLA's CPU backend hands a reduction over 3 to a library)
             A = sum(Rc[:, None, :, j, None] * R[None, :, None, j, :] for j in range(3))  # (V, S, 3, 3)
             b = sum(Rc[:, None, :, j] * t[None, :, None, j] for j in range(3)) + tc[:, None]  # (V, S, 3)
             parts = []
-            for start, stop, s in runs:
-                cam = kinematics.apply_by_runs(A, b, p[start:stop], [(0, stop - start, s)])
+            for (start, stop, s), cam in zip(
+                runs, kinematics.affine_by_runs(A, b, p, runs, adjoint), strict=True
+            ):
                 uv, z = camera.pixels_from_camera(self.rig, *cam)
                 nc = dot3(cl[:, s, None, :], n[start:stop]) if facing else None
                 parts.append(fields(uv, z, nc, npp[start:stop]))
@@ -439,18 +440,18 @@ class Likelihood:
         obs: Observation,
         aux: tuple,
         which: Sequence[int] | None = None,
-        by_runs: bool = True,
+        adjoint: bool = False,
         part=None,
     ) -> jnp.ndarray:
         """``(len(which), V)`` rows of :meth:`view_energies` for the cues ``which`` (default all), from a
-        :meth:`pose_stage` that has what they need (``by_runs``: :meth:`_surface_geometry`; ``part``: a
+        :meth:`pose_stage` that has what they need (``adjoint``: :meth:`_surface_geometry`; ``part``: a
         partition's :class:`~jaxmocap.likelihood.cue_context.PartWeights`)."""
         if (
             self.cue_weights is None
         ):  # the cues' own weights are not part of the structure (Cue: compare=False)
             raise ValueError("a Likelihood needs cue_weights (C,): build it with Likelihood.create")
         which = range(len(self.cues)) if which is None else which
-        g = self.geometry_from_pose(pose, obs.image_shape, self._needs(which), by_runs=by_runs)
+        g = self.geometry_from_pose(pose, obs.image_shape, self._needs(which), adjoint=adjoint)
         V = self.rig.num_views
         rows = []
         for c in which:
@@ -496,12 +497,12 @@ class Likelihood:
         obs: Observation,
         aux: tuple,
         lam_table: jnp.ndarray,
-        by_runs: bool = True,
+        adjoint: bool = False,
         part=None,
     ) -> jnp.ndarray:
         """``−Σ_c Σ_v λ_c,v k_c w_v E_c,v`` over the cues of the table, of one particle's :meth:`pose_stage` (with
         what those cues need) and their λ (:meth:`_table_lambda`)."""
-        e = self._energies_from_pose(pose, obs, aux, self._table_cues(), by_runs, part)
+        e = self._energies_from_pose(pose, obs, aux, self._table_cues(), adjoint, part)
         return -jnp.sum(lam_table * e)
 
     def _separate_energy(
@@ -528,18 +529,18 @@ class Likelihood:
         layer=0,
         aux: tuple | None = None,
         *,
-        by_runs: bool = True,
+        adjoint: bool = False,
         partition=None,
     ) -> jnp.ndarray:
         """Scalar ``log p_l(z | x)`` of one particle at annealing layer ``layer`` (see :meth:`layer_lambda`), composed
         as :meth:`batch` composes it, from one :meth:`pose_stage` with what every cue needs (one forward kinematics,
-        and one reverse pass through it when differentiated); ``by_runs``: :meth:`_surface_geometry`;
+        and one reverse pass through it when differentiated); ``adjoint``: :meth:`_surface_geometry`;
         ``partition``: as in :meth:`batch`."""
         aux = self.prepare(obs) if aux is None else aux
         part = self._part(layer_partition(layer, partition))
         table = self._table_cues()
         pose = self.pose_stage(x)
-        ll = self._table_loglik(pose, obs, aux, self._table_lambda(layer), by_runs, part) if table else 0.0
+        ll = self._table_loglik(pose, obs, aux, self._table_lambda(layer), adjoint, part) if table else 0.0
         for c in self._separate_cues():
             ll = ll - self._separate_weight(c, layer) * self._separate_energy(c, x, obs, aux, pose, part)
         return ll
@@ -593,8 +594,9 @@ class Likelihood:
     ) -> tuple[jnp.ndarray, jnp.ndarray]:
         """Values ``(N,)`` and gradients ``∂ℓ/∂x (N, D)`` of particles ``X (N, D)``: the per-particle
         :meth:`log_likelihood` differentiated in one ``vmap`` (reverse mode through the chunked ``lax.map`` of
-        :meth:`batch` was measured 4–9× slower on a CPU), its flesh points projected as world points
-        (``by_runs=False``: :meth:`_surface_geometry`). Non-finite values give ``−inf`` and a zero gradient.
+        :meth:`batch` was measured 4–9× slower on a CPU), its flesh points moved by the written-out reverse pass
+        of the runs (``adjoint=True``: :meth:`_surface_geometry`; reverse mode only). Non-finite
+        values give ``−inf`` and a zero gradient.
 
         More than ``2 · chunk_size`` particles go through it in ``n = ⌈N / (2 chunk_size)⌉`` chunks of ``⌈N / n⌉``
         (``lax.map`` over the vmapped value-and-gradient of a chunk, padded with copies of the first particle): the
@@ -604,7 +606,7 @@ class Likelihood:
         10 % slower in two chunks, 60 % slower in four).
         """
         aux = self.prepare(obs)
-        ll = lambda x: self.log_likelihood(x, obs, layer, aux, by_runs=False, partition=partition)  # noqa: E731
+        ll = lambda x: self.log_likelihood(x, obs, layer, aux, adjoint=True, partition=partition)  # noqa: E731
         f, (N, D) = jax.vmap(jax.value_and_grad(ll)), X.shape
         most = 2 * self.chunk_size
         if most <= 0 or N <= most:

@@ -1,6 +1,7 @@
 """Camera rigs: projection and triangulation against OpenCV, calibration loaders against real files and third-party
 reference values (PARSEC bodytrack, caliscope, Pose2Sim), gradients, batching and parser fuzzing."""
 
+import dataclasses
 import os
 import pathlib
 import re
@@ -557,3 +558,32 @@ def test_parsers_fuzz(name):
                     assert np.all(np.isfinite(a))
 
         run()
+
+
+@pytest.mark.parametrize("mode", ["fwd", "rev"])
+def test_pixel_jacobian_matches_opencv(mode):
+    """The written-out derivative of the projection (``pixels_from_camera``'s own JVP) in the camera-frame point:
+    OpenCV's ``projectPoints`` Jacobian in ``tvec`` for the object point at the origin (``x_c = tvec``), with all five
+    distortion coefficients; and in the distortion coefficients (the automatic derivative there)."""
+    rng = np.random.default_rng(3)
+    K = np.array([[420.0, 0.0, 161.0], [0.0, 415.0, 118.0], [0.0, 0.0, 1.0]])
+    dist = np.array([-0.21, 0.08, 0.0013, -0.0021, -0.012])
+    pts = np.column_stack([rng.uniform(-0.6, 0.6, 20), rng.uniform(-0.5, 0.5, 20), rng.uniform(1.5, 4.0, 20)])
+    jac = jax.jacfwd if mode == "fwd" else jax.jacrev
+    with enable_x64(True):
+        rig = C.from_opencv(K[None], dist[None], np.eye(3)[None], np.zeros((1, 3)), image_size=[(320, 240)])
+        rig = rig.to_jax(jnp.float64)
+
+        def pixel(xc, rig=rig):  # (3,) camera-frame point -> (2,) pixel
+            return C.pixels_from_camera(rig, *(xc[i].reshape(1, 1) for i in range(3)))[0][0, 0]
+
+        for X in pts:
+            uv, J = cv2.projectPoints(np.zeros((1, 3)), np.zeros(3), X, K, dist)
+            J = J.reshape(2, -1)
+            np.testing.assert_allclose(np.asarray(pixel(jnp.asarray(X))), uv.reshape(2), rtol=1e-12)
+            np.testing.assert_allclose(
+                np.asarray(jac(pixel)(jnp.asarray(X))), J[:, 3:6], rtol=1e-9, atol=1e-9
+            )
+        # in the distortion coefficients, at the last point
+        Jd = jac(lambda d: pixel(jnp.asarray(X), dataclasses.replace(rig, dist=d[None])))(jnp.asarray(dist))
+        np.testing.assert_allclose(np.asarray(Jd), J[:, 10:15], rtol=1e-9, atol=1e-9)

@@ -225,3 +225,43 @@ def test_fk_derivative_from_joint_twists():
             auto = jax.jit(jac(fk(kinematics._segment_poses_loop), argnums=(0, 1)))(offset, x)
             for a, b in zip(jax.tree_util.tree_leaves(ours), jax.tree_util.tree_leaves(auto), strict=True):
                 np.testing.assert_allclose(np.asarray(a), np.asarray(b), atol=1e-12)
+
+
+def test_affine_by_runs_adjoint_is_the_closed_form_reverse_pass():
+    """The written-out reverse pass of the runs (``adjoint=True``): ``Ā_s = Σ_{p∈s} ḡ_p p_pᵀ``, ``b̄_s = Σ_{p∈s} ḡ_p``,
+    ``p̄_p = Σ_lead A_{s(p)}ᵀ ḡ_p`` (numpy), equal to JAX's own transpose of the sliced products, including a segment
+    with two runs, segments with none and a leading axis; finite differences (``check_grads``) in float64; forward
+    mode is refused."""
+    rng = np.random.default_rng(8)
+    runs = [(0, 3, 1), (3, 7, 4), (7, 9, 1), (9, 12, 0)]
+    seg = np.concatenate([[s] * (b - a) for a, b, s in runs])
+    with enable_x64(True):
+        A = jnp.asarray(rng.normal(size=(2, 5, 3, 3)))
+        b = jnp.asarray(rng.normal(size=(2, 5, 3)))
+        pts = jnp.asarray(rng.normal(size=(12, 3)))
+        g = rng.normal(size=(3, 2, 12))
+
+        def f(adjoint):
+            return lambda A, b, p: jnp.stack(kinematics.apply_by_runs(A, b, p, runs, adjoint), 0)
+
+        out, pull = jax.vjp(f(True), A, b, pts)
+        gA, gb, gp = (np.asarray(a) for a in pull(jnp.asarray(g)))
+        np.testing.assert_allclose(
+            out,
+            np.einsum("lpij,pj->ilp", np.asarray(A)[:, seg], pts) + np.moveaxis(np.asarray(b)[:, seg], -1, 0),
+        )
+        refA, refb = np.zeros((2, 5, 3, 3)), np.zeros((2, 5, 3))
+        for p, s in enumerate(seg):
+            refA[:, s] += np.einsum("il,j->lij", g[:, :, p], np.asarray(pts)[p])
+            refb[:, s] += g[:, :, p].T
+        refp = np.einsum("lpij,ilp->pj", np.asarray(A)[:, seg], g)
+        np.testing.assert_allclose(gA, refA, atol=1e-12)
+        np.testing.assert_allclose(gb, refb, atol=1e-12)
+        np.testing.assert_allclose(gp, refp, atol=1e-12)
+        assert np.all(gA[:, [2, 3]] == 0) and np.all(gb[:, [2, 3]] == 0)  # segments without a run
+        auto = jax.vjp(f(False), A, b, pts)[1](jnp.asarray(g))
+        for mine, theirs in zip((gA, gb, gp), auto, strict=True):
+            np.testing.assert_allclose(mine, theirs, atol=1e-12)
+        check_grads(f(True), (A, b, pts), order=1, modes=["rev"])
+        with pytest.raises(TypeError):
+            jax.jvp(f(True), (A, b, pts), (A, b, pts))
