@@ -390,9 +390,8 @@ class Likelihood:
             A = sum(Rc[:, None, :, j, None] * R[None, :, None, j, :] for j in range(3))  # (V, S, 3, 3)
             b = sum(Rc[:, None, :, j] * t[None, :, None, j] for j in range(3)) + tc[:, None]  # (V, S, 3)
             parts = []
-            for (start, stop, s), cam in zip(
-                runs, kinematics.affine_by_runs(A, b, p, runs, adjoint), strict=True
-            ):
+            pieces = kinematics.affine_by_runs(A, b, p, runs, adjoint)
+            for (start, stop, s), cam in zip(runs, pieces, strict=True):
                 uv, z = camera.pixels_from_camera(self.rig, *cam)
                 nc = dot3(cl[:, s, None, :], n[start:stop]) if facing else None
                 parts.append(fields(uv, z, nc, npp[start:stop]))
@@ -594,9 +593,8 @@ class Likelihood:
     ) -> tuple[jnp.ndarray, jnp.ndarray]:
         """Values ``(N,)`` and gradients ``∂ℓ/∂x (N, D)`` of particles ``X (N, D)``: the per-particle
         :meth:`log_likelihood` differentiated in one ``vmap`` (reverse mode through the chunked ``lax.map`` of
-        :meth:`batch` was measured 4–9× slower on a CPU), its flesh points moved by the written-out reverse pass
-        of the runs (``adjoint=True``: :meth:`_surface_geometry`; reverse mode only). Non-finite
-        values give ``−inf`` and a zero gradient.
+        :meth:`batch` was measured 4–9× slower on a CPU), its flesh points moved with their runs' written-out
+        reverse pass (``adjoint=True``: :meth:`_surface_geometry`). Non-finite values give ``−inf``, zero gradient.
 
         More than ``2 · chunk_size`` particles go through it in ``n = ⌈N / (2 chunk_size)⌉`` chunks of ``⌈N / n⌉``
         (``lax.map`` over the vmapped value-and-gradient of a chunk, padded with copies of the first particle): the
