@@ -321,10 +321,7 @@ def _pixels_jvp(primals, tangents):
     r2 = a2 + b2
     rho = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
     drho = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
-    ad = a * rho + 2.0 * p1 * ab + p2 * (r2 + 2.0 * a2)
-    bd = b * rho + p1 * (r2 + 2.0 * b2) + 2.0 * p2 * ab
-    fx, s, cx = _col(K[:, 0, 0]), _col(K[:, 0, 1]), _col(K[:, 0, 2])
-    fy, cy = _col(K[:, 1, 1]), _col(K[:, 1, 2])
+    fx, s, fy = _col(K[:, 0, 0]), _col(K[:, 0, 1]), _col(K[:, 1, 1])
     off = 2.0 * ab * drho + 2.0 * p1 * a + 2.0 * p2 * b  # ∂a_d/∂b = ∂b_d/∂a
     daa = rho + 2.0 * a2 * drho + 2.0 * p1 * b + 6.0 * p2 * a
     dbb = rho + 2.0 * b2 * drho + 6.0 * p1 * b + 2.0 * p2 * a
@@ -333,8 +330,7 @@ def _pixels_jvp(primals, tangents):
     db = ((0.0 if isinstance(ty, SymbolicZero) else ty) - b * dz) * inv_z
     dad = daa * da + off * db
     dbd = off * da + dbb * db
-    out = (fx * ad + s * bd + cx, fy * bd + cy)
-    return out, (fx * dad + s * dbd, fy * dbd)
+    return _pixels_plain(K, dist, xc, yc, zc), (fx * dad + s * dbd, fy * dbd)
 
 
 def project(rig: Rig, X) -> jnp.ndarray:
