@@ -11,6 +11,11 @@ maps; ``ring4``: four cameras around), read as a recording (:class:`jaxmocap.io.
 * ``REV`` (``--against REV``) — the defaults of the package at git revision ``REV``
   (:func:`common.package_at`), e.g. the revision before a change.
 
+``--preset NAME`` takes that preset's options instead of the defaults in every configuration (``--variant`` fields
+over them); ``--fps``, ``--background``, ``--clutter`` and ``--no-detections`` choose the rendered scene, e.g. the
+IROS 2007 scenario: ``--preset iros2007 --rigs stereo --size 640x480 --fps 15 --background room --clutter medium
+--no-detections``.
+
 Each configuration is run once to compile (the persistent compilation cache on), then ``--rounds`` interleaved
 rounds, the order rotated each round; ``--busy`` adds as many rounds again with a CPU-bound process beside them
 (``bodytrack.busy``: a second core's worth of work, as a machine doing other things). Reported per round: each
@@ -18,7 +23,8 @@ configuration's frames/s after the first frame (the summary's ``frames_per_s``),
 the load average.
 
     python benchmarks/perf/track_rate.py [--rigs stereo ring4] [--frames 40] [--size 320x240] [--rounds 3]
-        [--busy] [--variant "no depth:refine_depth=0" …] [--against REV] [--title T] [--out FILE.md]
+        [--busy] [--variant "no depth:refine_depth=0" …] [--against REV] [--preset NAME] [--fps 30]
+        [--background plain] [--clutter none] [--no-detections] [--title T] [--out FILE.md]
 """
 
 from __future__ import annotations
@@ -54,14 +60,18 @@ def parse_variant(text: str) -> tuple[str, dict]:
         raise SystemExit(f"--variant {text!r}: {e}") from None
 
 
-def configurations(against: str | None, variants=()):
-    """``{name: run(seq, out) -> frames/s}`` of the compared trackers (``variants``: ``(label, options)``)."""
+def configurations(against: str | None, variants=(), preset: str | None = None):
+    """``{name: run(seq, out) -> frames/s}`` of the compared trackers (``variants``: ``(label, options)``; ``preset``:
+    the options of that preset instead of the defaults, in every configuration)."""
 
     def tracker(sources, options_mod, tracker_mod, **options):
         def run(seq, out):
             src = sources.SequenceSource(seq, recording=True)
             try:
-                opts = options_mod.TrackOptions(overwrite=True, **options)
+                if preset:
+                    opts = options_mod.TrackOptions.from_preset(preset, overwrite=True, **options)
+                else:
+                    opts = options_mod.TrackOptions(overwrite=True, **options)
                 return float(tracker_mod.Tracker(src, out, opts, quiet=True).run()["frames_per_s"])
             finally:
                 src.close()
@@ -98,6 +108,15 @@ def main(argv=None) -> int:
     ap.add_argument("--rigs", nargs="+", default=["stereo", "ring4"], choices=["stereo", "ring4"])
     ap.add_argument("--frames", type=int, default=40)
     ap.add_argument("--size", default="320x240")
+    ap.add_argument(
+        "--fps", type=float, default=30.0, help="the sequence's frame rate (every 120/fps-th frame)"
+    )
+    ap.add_argument("--background", default="plain", help="the synthetic scene's background (synthesize)")
+    ap.add_argument("--clutter", default="none", help="clutter on the room's walls (synthesize)")
+    ap.add_argument(
+        "--detections", action=argparse.BooleanOptionalAction, default=True, help="simulated 2D detections"
+    )
+    ap.add_argument("--preset", default=None, help="the options of this preset instead of the defaults")
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--busy", action="store_true", help="as many rounds again beside a CPU-bound process")
     ap.add_argument(
@@ -113,14 +132,18 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     compilation_cache.enable()
     variants = [parse_variant(v) for v in a.variant]
-    configs = configurations(a.against, variants)
+    configs = configurations(a.against, variants, a.preset)
     names = list(configs)
     lines = []
     with tempfile.TemporaryDirectory() as tmp:
         tmp = pathlib.Path(tmp)
         for rig in a.rigs:
             seq = tmp / f"walk_{rig}"
-            synth.synthesize("demo", seq, rig=rig, frames=f"0:{4 * a.frames}", size=a.size, seed=0)
+            step = round(120 / a.fps)  # the walk is captured at 120 frames/s
+            synth.synthesize(
+                "demo", seq, rig=rig, frames=f"0:{step * a.frames}", fps=a.fps, size=a.size, seed=0,
+                background=a.background, clutter=a.clutter, detections=a.detections,
+            )  # fmt: skip
             for name in names:  # compile (or load from the cache) once each
                 configs[name](seq, tmp / "run")
             rows = []
@@ -161,13 +184,19 @@ def main(argv=None) -> int:
         [
             f"# `jaxmocap track`: {a.title}\n",
             f"Reproduce: `{cmd}` ({common.stamp()}, {common.machine_line()})\n",
-            f"The bundled walk, {a.frames} frames at {a.size}, read as a recording; `jaxmocap track`'s defaults "
-            "(`default`)"
+            f"The bundled walk, {a.frames} frames at {a.size} and {a.fps:g} frames/s (background {a.background}, "
+            f"clutter {a.clutter}{'' if a.detections else ', no detections'}), read as a recording; "
+            + (f"`jaxmocap track --preset {a.preset}`" if a.preset else "`jaxmocap track`'s defaults")
+            + " (`default`)"
             + "".join(
                 f", `{label}` (" + ", ".join(f"`{k}={v}`" for k, v in options.items()) + ")"
                 for label, options in variants
             )
-            + (f", and the defaults of revision `{names[-1]}` (`--against {a.against}`)" if a.against else "")
+            + (
+                f", and the {'preset' if a.preset else 'defaults'} of revision `{names[-1]}` (`--against {a.against}`)"
+                if a.against
+                else ""
+            )
             + "; frames/s after the first frame, interleaved rounds in one process (module docstring of "
             "`benchmarks/perf/track_rate.py`).\n",
             *lines,

@@ -12,8 +12,6 @@ No background model is used (the cameras may move).
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import cv2
 import numpy as np
 
@@ -23,15 +21,28 @@ from jaxmocap.features.stereo import sgbm_disparity, sgbm_matcher
 __all__ = ["StereoGate", "StereoFrame"]
 
 
-class StereoFrame(NamedTuple):
+class StereoFrame:
     """One frame of the gate, all in the rectified first view at the gate's size ``(h, w)``: ``image (h, w, 3)``
-    the rectified first view (BGR ``uint8``), ``disparity (h, w)`` float32 pixels (NaN: none), ``points (h, w, 3)``
-    world metres (NaN without a disparity), ``ok (h, w)`` bool: the gate."""
+    the rectified first view (BGR ``uint8``), ``disparity (h, w)`` float32 pixels (NaN: none); ``points (h, w, 3)``
+    world metres (NaN without a disparity) and ``ok (h, w)`` bool, the gate, computed from the disparity when
+    first read (a frame whose matched blobs the disparity confirms never needs them: :meth:`StereoGate.agrees`
+    reads the disparity alone)."""
 
-    image: np.ndarray
-    disparity: np.ndarray
-    points: np.ndarray
-    ok: np.ndarray
+    def __init__(self, gate: StereoGate, image: np.ndarray, disparity: np.ndarray):
+        self._gate, self.image, self.disparity = gate, image, disparity
+        self._points = self._ok = None
+
+    @property
+    def points(self) -> np.ndarray:
+        if self._points is None:
+            self._points = self._gate._points(self.disparity)
+        return self._points
+
+    @property
+    def ok(self) -> np.ndarray:
+        if self._ok is None:
+            self._ok = self._gate._ok(self.disparity)
+        return self._ok
 
 
 class StereoGate:
@@ -116,18 +127,29 @@ class StereoGate:
         rect = [
             cv2.remap(images[v], m[0], m[1], cv2.INTER_LINEAR) for v, m in zip(views, self.maps, strict=True)
         ]
-        disp = sgbm_disparity(rect[0], rect[1], self.matcher)
+        return StereoFrame(self, rect[0], sgbm_disparity(rect[0], rect[1], self.matcher))
+
+    def _points(self, disp: np.ndarray) -> np.ndarray:
+        """``(h, w, 3)`` world points of a disparity map (NaN without a disparity)."""
         w, h = self.size
-        valid = np.nan_to_num(disp) > 0
-        iv, iu = np.nonzero(valid)  # the points of pixels with a disparity only (the rest: NaN)
-        P = self.to_world(np.column_stack([iu, iv, disp[iv, iu]]))
+        iv, iu = np.nonzero(np.nan_to_num(disp) > 0)
         pts = np.full((h, w, 3), np.nan)
-        pts[iv, iu] = P
-        centre = -self.t0 @ self.R0
-        lo, hi = self.height_range
-        with np.errstate(invalid="ignore"):
-            good = np.sum((P - centre) ** 2, axis=1) <= self.max_range**2
-            good &= (P[:, 2] >= lo) & (P[:, 2] <= hi)
-        ok = np.zeros((h, w), bool)
-        ok[iv[good], iu[good]] = True
-        return StereoFrame(rect[0], disp, pts, ok)
+        pts[iv, iu] = self.to_world(np.column_stack([iu, iv, disp[iv, iu]]))
+        return pts
+
+    def _ok(self, disp: np.ndarray) -> np.ndarray:
+        """``(h, w)`` bool, the gate of a disparity map: a valid disparity whose world point lies within
+        ``max_range`` of the first camera and in ``height_range``. The point's coordinates are ratios of affine
+        functions of ``(u, v, d)`` (:meth:`to_world`), evaluated on the pixel grid without gathering the points."""
+        w, h = self.size
+        d = np.nan_to_num(disp).astype(np.float64)
+        u, v = np.arange(w, dtype=np.float64)[None, :], np.arange(h, dtype=np.float64)[:, None]
+        M, m = self._Mt.T, self._m  # h = M (u, v, d) + m: the world point times d / B, and d / B
+        X = [M[k, 0] * u + M[k, 1] * v + M[k, 2] * d + m[k] for k in range(4)]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = 1.0 / X[3]
+            c = -self.t0 @ self.R0
+            r2 = sum((X[k] * inv - c[k]) ** 2 for k in range(3))
+            z = X[2] * inv
+            lo, hi = self.height_range
+            return (d > 0) & (r2 <= self.max_range**2) & (z >= lo) & (z <= hi)

@@ -32,7 +32,9 @@ Per frame, on the full-size images of a calibrated pair (views ``(0, 1)``):
 6. :func:`jaxmocap.fit.ik.from_head_hands` to the model's configuration nearest the reference pose (or the rest
    pose) that puts the head joint and the wrists on the blobs (:func:`head_hands_pose`).
 
-Everything here runs on the host (OpenCV) except the IK, which is compiled once per model.
+Everything here runs on the host (OpenCV) except the IK, which is compiled once per model. The image work
+(steps 1–2 and the face search, :meth:`HeadHandsDetector.look`) needs no pose, so the tracker runs it for the
+next frame in a thread of its own while the current frame is tracked; steps 3–6 need the last estimate.
 """
 
 from __future__ import annotations
@@ -48,7 +50,7 @@ from jaxmocap.fit import ik
 from jaxmocap.geometry import camera
 from jaxmocap.tracking.init import joint_positions, root_translation_dofs
 
-__all__ = ["HeadHands", "HeadHandsDetector", "assign_hands", "choose_head", "head_hands_pose"]
+__all__ = ["HeadHands", "HeadHandsDetector", "Sighting", "assign_hands", "choose_head", "head_hands_pose"]
 
 
 class HeadHands(NamedTuple):
@@ -60,6 +62,18 @@ class HeadHands(NamedTuple):
     right: np.ndarray
     weights: np.ndarray
     how: str
+
+
+class Sighting(NamedTuple):
+    """What a frame's images show (:meth:`HeadHandsDetector.look`, steps 1–2 and the faces of step 3): the
+    plausible blobs ``points (K, 3)``, first-view ``centroids (K, 2)``, ``scores (K,)``, ``radii (K,)``
+    (:meth:`HeadHandsDetector.candidates`) and the face boxes ``faces (F, 4)`` found near them."""
+
+    points: np.ndarray
+    centroids: np.ndarray
+    scores: np.ndarray
+    radii: np.ndarray
+    faces: np.ndarray
 
 
 def choose_head(
@@ -258,11 +272,23 @@ class HeadHandsDetector:
         return np.asarray(out, np.float64).reshape(-1, 4)
 
     def __call__(self, images, model=None, reference: np.ndarray | None = None) -> HeadHands | None:
-        """The frame's head and hands, or None without a head (``model``/``reference``: :func:`assign_hands`)."""
+        """The frame's head and hands, or None without a head (``model``/``reference``: :func:`assign_hands`):
+        :meth:`decide` on :meth:`look`."""
+        return self.decide(self.look(images), model, reference)
+
+    def look(self, images) -> Sighting:
+        """The image work of a frame (OpenCV, no pose needed): the candidates and the faces near them. It does not
+        depend on the last estimate, so the tracker runs it for the next frame while the current one is tracked
+        (:meth:`jaxmocap.tracking.setup.TrackSetup.observe`)."""
         pts, uv, conf, radius = self.candidates(images)
         faces = np.zeros((0, 4))
         if self.face_detector is not None and len(pts):
             faces = self.faces_near(images[self.views[0]], uv)
+        return Sighting(pts, uv, conf, radius, faces)
+
+    def decide(self, seen: Sighting, model=None, reference: np.ndarray | None = None) -> HeadHands | None:
+        """Steps 3–5 on a frame's :class:`Sighting`: the head, the hands and their sides, or None without a head."""
+        pts, uv, conf, radius, faces = seen
         k, how = choose_head(pts, uv, faces, self.min_head_height)
         if k is None:
             return None

@@ -23,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import pickle
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import jax
 import jax.numpy as jnp
@@ -233,6 +234,9 @@ class TrackSetup:
         # was seen, and the pose
         self._hh_fd = self._hh_ref = self._hh_pose = None
         self._hh_seen = False
+        # the detector's image work (:meth:`_sighting`): of the frame read last, started in a thread by
+        # :meth:`observe` (frame, future), and of the frame decided last (frame, sighting)
+        self._hh_look = self._hh_sight = self._hh_worker = None
         if o.proposal == "head-hands" or o.init == "head-hands":
             from jaxmocap.tracking.head_hands import HeadHandsDetector
 
@@ -539,8 +543,30 @@ class TrackSetup:
                 raise MocapInputError(None, f"{e} (--on-bad-frame stop)") from None
             warn(f"skipping frame {t}: {e}")
             return None, None, None, str(e)
+        if (
+            self.o.proposal == "head-hands"
+        ):  # the detector's image work beside the features (OpenCV frees the GIL)
+            self._hh_look = (fd, self._head_hands_worker().submit(self.head_hands.look, fd.images))
         tobs, masks = self.features(fd, self.model.num_dofs)
         return tobs, masks, fd, None
+
+    def _sighting(self, fd):
+        """The head-and-hands detector's image work on frame data ``fd`` (:meth:`~jaxmocap.tracking.head_hands.
+        HeadHandsDetector.look`): from the thread :meth:`observe` started it in, or done now."""
+        for held in (self._hh_sight, self._hh_look):
+            if held is not None and held[0] is fd:
+                seen = held[1].result() if isinstance(held[1], Future) else held[1]
+                break
+        else:
+            seen = self.head_hands.look(fd.images)
+        self._hh_sight = (fd, seen)
+        return seen
+
+    def _head_hands_worker(self):
+        """The thread that runs the head-and-hands detector's image work (:meth:`observe`), started once."""
+        if self._hh_worker is None:
+            self._hh_worker = ThreadPoolExecutor(1, thread_name_prefix="jaxmocap-head-hands")
+        return self._hh_worker
 
     def check_initial(self, t0: int) -> None:
         """Fail now where ``--init`` cannot work (:func:`jaxmocap.tracking.init.check_initial`)."""
@@ -576,7 +602,7 @@ class TrackSetup:
         if self._hh_fd is not fd or self._hh_ref != ref:
             from jaxmocap.tracking.head_hands import head_hands_pose
 
-            det = self.head_hands(fd.images, self.model, reference)
+            det = self.head_hands.decide(self._sighting(fd), self.model, reference)
             # the frame is held, so that a later frame cannot take its id
             self._hh_fd, self._hh_ref, self._hh_seen, self._hh_pose = fd, ref, det is not None, None
             if det is not None:

@@ -8,6 +8,7 @@ tracking run on a rendered stereo sequence that starts with nobody in view (no g
 import json
 import math
 import pathlib
+import threading
 
 import cv2
 import jax
@@ -290,6 +291,28 @@ def test_stereo_gate_finds_the_head_in_a_cluttered_room(cluttered):
         d = matched(images)
         misses += d is None or np.linalg.norm(cam(d.head)[0] - uv_t) >= 8.0
     assert src.num_frames == 3 and misses == 3
+
+
+def test_tracker_looks_for_the_head_and_hands_of_the_next_frame_in_a_thread(cluttered):
+    """``TrackSetup.observe`` starts the detector's image work (:meth:`HeadHandsDetector.look`) in a thread of its
+    own beside the features; the pose it gives is the one the detector gives called on the images directly, for the
+    frame read last and for a frame read before it (whose work is done again, not taken from the later frame)."""
+    src = SequenceSource(cluttered)
+    s = TrackSetup(src, TrackOptions.from_preset("iros2007", downsample=4))
+    direct = hh.HeadHandsDetector(src.rig)
+
+    def expected(fd):
+        return hh.head_hands_pose(s.model, direct(fd.images, s.model, None), None)
+
+    fds = []
+    for k in range(2):
+        fds.append(s.observe(k)[2])
+        fd, future = s._hh_look
+        assert fd is fds[-1] and future.result() is not None
+    assert any(t.name.startswith("jaxmocap-head-hands") for t in threading.enumerate())
+    np.testing.assert_array_equal(s.head_hands_pose(fds[1], None), expected(fds[1]))
+    np.testing.assert_array_equal(s.head_hands_pose(fds[0], None), expected(fds[0]))
+    assert np.abs(expected(fds[0]) - expected(fds[1])).max() > 1e-3  # the frames' poses differ
 
 
 # -- one tracking run -------------------------------------------------------------------------------------------
