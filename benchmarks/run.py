@@ -279,6 +279,17 @@ SCRIPTS: dict[str, Script] = {
         writes=("track_rate.md",),
         slow=True,
     ),
+    "track_rate_iros2007": Script(
+        "Frames/s of the IROS 2007 preset at 640x480 in the room, against the revision before the head-and-hands "
+        "thread",
+        "perf/track_rate.py",
+        "--preset iros2007 --rigs stereo --size 640x480 --fps 15 --background room --clutter medium "
+        "--no-detections --frames 20 --rounds 5 --busy --against aff61e3 "
+        "--title 'the IROS 2007 preset, head and hands looked for beside the features' "
+        "--out benchmarks/results/track_rate_iros2007.md",
+        writes=("track_rate_iros2007.md",),
+        slow=True,
+    ),
     "track_rate_full32": Script(
         "Frames/s of the full32 body (spine and shoulder girdles) beside the full25 default",
         "perf/track_rate.py",

@@ -543,9 +543,8 @@ class TrackSetup:
                 raise MocapInputError(None, f"{e} (--on-bad-frame stop)") from None
             warn(f"skipping frame {t}: {e}")
             return None, None, None, str(e)
-        if (
-            self.o.proposal == "head-hands"
-        ):  # the detector's image work beside the features (OpenCV frees the GIL)
+        # the head-and-hands detector's image work in its thread, beside the features (OpenCV frees the GIL)
+        if self.o.proposal == "head-hands":
             self._hh_look = (fd, self._head_hands_worker().submit(self.head_hands.look, fd.images))
         tobs, masks = self.features(fd, self.model.num_dofs)
         return tobs, masks, fd, None
