@@ -155,22 +155,29 @@ SPECS = (
     Spec("hybrid", 25, steps=2),
 )
 QUICK_SPECS = (Spec("APF", 25), Spec("hybrid", 10))
-#: what the tables show (written for the run of 2026-11-25 15:45 UTC, 5 seeds; a rerun keeps it: rewrite it then)
+#: what the tables show (written for the run of 2026-11-29 15:56 UTC, 5 seeds; a rerun keeps it: rewrite it then)
 READING = (
-    "Reading (written for the run of 2026-11-25 15:45 UTC). At the high end of the budgets, yes: the hybrid "
-    "(S = 3 steps on the 5 best particles in every layer) at 21–27 ms per frame has 78.6–86.0 mm pooled "
-    "(N = 25 / 10 / 50) against the APF's 92.3 mm at 33 ms (N = 400; the best hybrid −13.7 ± 4.3 mm, more "
-    "than 2 s.e.) and 82.8 mm at 67 ms (N = 800): the best hybrid reaches that error with 0.37× the APF's time "
-    "(−4.2 ± 4.0 mm, within the noise; N = 10 and 50 are 3 mm above it). Per motion it is clearly better on the "
-    "turn and the hops and not on the walk (58.3 against 53.6 mm for APF N = 800). Below 20 ms per frame, no: "
-    "the configurations that fast (S = 1, moves in the last layer only, the refined APF, 2 layers) are within "
-    "noise of the APF at the same time or worse, and at ≤ ½ of a cheap APF's time none reaches its error. "
-    "The hybrid's time is not proportional to its gradient evaluations (20 / 40 / 60 per frame): S = 1 costs "
-    "8.3 ms, S = 2 21.0 ms, S = 3 24.8 ms at N = 25, so one step per layer is the cheap setting, and it is "
-    "not better than the APF at its time (102.0 mm at 8.3 ms). The lowest pooled error of "
-    "15 gradient configurations is an optimistic pick; the three hybrid sizes together are the fairer "
-    "reading. Runtime: 604 s with every program in the persistent compilation cache; about 30 min compiling "
-    "them all (load 5–6)."
+    "Reading (written for the run of 2026-11-29 15:56 UTC, after the faster gradient path of 6fc9aa2; every time "
+    "is 1.5–1.8× that of the run of 2026-11-25, APF N = 200 31.7 against 20 ms per frame: the machine was "
+    "slower that day and shared). At 17 ms per frame and more, yes: the hybrid with S = 3 steps on the 5 best "
+    "particles in every layer has 85.5 / 83.0 / 81.3 mm pooled at 27.6 / 30.9 / 35.1 ms (N = 10 / 25 / 50) "
+    "against the APF's 97.5 mm at 31.7 ms (N = 200; the best hybrid at that time −14.4 ± 4.6 mm, more than "
+    "2 s.e.), 91.4 mm at 60 ms (N = 400; −10.1 ± 4.6 mm) and 87.1 mm at 118 ms (N = 800): all three hybrid "
+    "sizes reach the largest APF's error in 0.23–0.30× its time (each within the noise of it, −1.6 to −5.8 mm). "
+    "At 17 ms the 2-layer hybrid (N = 50) beats the APF with 100 particles (95.8 against 104.8 mm at 18 ms, "
+    "−9.0 ± 3.8 mm). At the two cheapest APF budgets (6 and 10 ms) no gradient configuration is that fast (the "
+    "cheapest, the refined APF with 25 particles, takes 11.3 ms). Per motion the hybrid is "
+    "clearly better on the turn and the hops, level on the walk (53.9 against 55.4 mm for APF N = 800) and not "
+    "better on the Charleston (72.7 against 66.9 mm). Against the run of 2026-11-25 the gradient got cheaper "
+    "relative to the forward pass (value and gradient 2.6–2.9 forward evaluations at 200 particles in the clips' "
+    "processes, 4.9–6.3 before): S = 3 at N = 25 took 0.97× the time of APF N = 200 (1.24× before), so the "
+    "hybrid meets the APF's error at half its time for 2 of 6 budgets (1 before) and beats it at equal time "
+    "by more than 2 s.e. for 3 (1 before). The hybrid's time is still not proportional to its gradient "
+    "evaluations (20 / 40 / 60 per frame: 8.0 / 20.9 / 25.2 ms above APF N = 25 for S = 1 / 2 / 3): each "
+    "value-and-gradient call on the 5 moved particles costs about 2 ms, mostly the fixed costs of its kernels. "
+    "The refined APF (10 Adam steps from the mean) does not pay (101.2 mm at 23 ms against the APF's 104.8 mm "
+    "at 18 ms). The lowest pooled error of 15 gradient configurations is an optimistic pick; the three hybrid "
+    "sizes together are the fairer reading. Runtime: 2690 s for the whole run, compilation included."
 )
 
 
