@@ -37,8 +37,10 @@ runs of the run's mean 3D error, per clutter level.
 rate after the first frame) with the features at 640x480 (``--downsample 1``) and at 160x120, on 02_01 walk in the
 room at clutter medium, and the median time per frame of its stages measured apart: reading the frame (PNG
 decoding), the feature maps (:class:`jaxmocap.tracking.features.FeatureBuilder`), the head-and-hands detection (its
-OpenCV part) and its IK; the filter's share is the rest of the frame's time (within the noise of the machine's
-load: the stages are timed in a second pass).
+OpenCV part, :meth:`jaxmocap.tracking.head_hands.HeadHandsDetector.look`) and its IK, each alone. In a run the
+detection's OpenCV part of the next frame runs in a thread beside its features, and the filter's step of the current
+frame beside both, so the frame takes less than the stages' sum on two cores; the last column (frame time − the
+stages' sum, negative when they overlap) is no longer the filter's share.
 
 Usage::
 
@@ -460,8 +462,9 @@ def speed(frames: int, quick: bool) -> str:
         f"{frames} frames at 15 fps, stereo 640x480 rendered in the room at clutter medium; IAPF 200 × 3, seed 0. "
         "Frames/s: the tracker's rate after the first frame; stages: medians over the frames after the first, "
         "measured apart (module docstring). The paper: 1–4 Hz on a Pentium IV; the goal here 30 frames/s at "
-        "640x480. The last column, the frame's time less the stages', is the filter's and the loop's share "
-        "(within the noise of the machine's load: the stages are timed in a second pass).",
+        "640x480. The stages are timed alone, in a second pass; in a run the head and hands' OpenCV part of the next "
+        "frame runs in a thread beside its features and the filter's step beside both, so the last column, the "
+        "frame's time less the stages' sum, is negative where they overlap.",
         "",
         "| features | frames/s | ms/frame | "
         + " | ".join(f"{k} (ms)" for k in stages)
