@@ -129,6 +129,7 @@ class Tracker:
         import jax
         import jax.numpy as jnp
 
+        from jaxmocap import host
         from jaxmocap.parsec import track as ptrack
         from jaxmocap.parsec.annealing import parsec_apf
 
@@ -137,8 +138,11 @@ class Tracker:
         x0 = jnp.asarray(seq.initial_pose, jnp.float32)
         loglik = ptrack.make_loglik(seq.shape, seq.cameras)  # bodytrack drops invalid poses (−1e10)
         filt = parsec_apf(loglik, std, particles, layers)
-        self._start = jax.jit(lambda k, o: ptrack.weighted_start(filt, loglik, k, x0, std, o))
-        self._step = jax.jit(filt.step)
+        options = host.loop_fusion_options()  # the options ``jaxmocap track`` compiles PARSEC's step with
+        self._start = jax.jit(
+            lambda k, o: ptrack.weighted_start(filt, loglik, k, x0, std, o), compiler_options=options
+        )
+        self._step = jax.jit(filt.step, compiler_options=options)
 
     def run(self, seed: int = 0, frames: int | None = None) -> TrackerRun:
         """Track frames ``0 … frames − 1`` (all by default) with key ``seed``; each frame timed as its host maps
@@ -158,15 +162,6 @@ class Tracker:
             step.append(time.perf_counter() - t1)
             est.append(np.asarray(info.estimate, np.float64))
         return TrackerRun(np.stack(est), np.asarray(maps), np.asarray(step))
-
-
-def cpu() -> str:
-    for line in (
-        pathlib.Path("/proc/cpuinfo").read_text().splitlines() if os.path.exists("/proc/cpuinfo") else []
-    ):
-        if line.startswith("model name"):
-            return line.split(":", 1)[1].strip()
-    return "CPU"
 
 
 def label(load: float) -> str:

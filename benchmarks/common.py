@@ -82,18 +82,15 @@ def stamp() -> str:
 
 
 def machine_line() -> str:
-    """``"<CPU model>, <n> cores, load average <1 min>"`` (the machine is shared: the load says how much)."""
+    """``"<CPU> (family, model; vector ISA), <n> cores, load average <1 min>"`` (:func:`jaxmocap.host.description`:
+    XLA compiles for the CPU it finds, so figures compare only on the same one; the machine is shared: the load
+    says how much)."""
     import os
-    import platform
 
-    model = platform.machine()
-    try:
-        lines = pathlib.Path("/proc/cpuinfo").read_text().splitlines()
-        model = next(x.split(":", 1)[1].strip() for x in lines if x.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
+    from jaxmocap import host
+
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    return f"{model}, {os.cpu_count()} cores, load average {load:.1f}"
+    return f"{host.description()}, {os.cpu_count()} cores, load average {load:.1f}"
 
 
 def regenerate_line(command: str) -> str:

@@ -529,25 +529,17 @@ def run_script(s: Script) -> int:
 # Machine, versions, RESULTS.md
 
 
-def cpu_model() -> str:
-    try:
-        for line in pathlib.Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
-
-
 def machine_block(load: tuple[float, float, float]) -> str:
     import cv2
     import jax
     import jaxlib
     import numpy as np
 
+    from jaxmocap import host
+
     devices = ", ".join(sorted({f"{d.platform}" for d in jax.devices()}))
     return (
-        f"Machine: {cpu_model()}, {os.cpu_count()} cores, load average at start {load[0]:.1f} / {load[1]:.1f} / "
+        f"Machine: {host.description()}, {os.cpu_count()} cores, load average at start {load[0]:.1f} / {load[1]:.1f} / "
         f"{load[2]:.1f} (1 / 5 / 15 min); JAX devices: {devices}.  \n"
         f"Versions: Python {platform.python_version()}, JAX {jax.__version__}, jaxlib {jaxlib.__version__}, "
         f"NumPy {np.__version__}, OpenCV {cv2.__version__}.  \n"

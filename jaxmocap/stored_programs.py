@@ -145,7 +145,8 @@ class StoredJit:
     ``fn`` closes over), or None (then this is plain ``jax.jit``); ``folder``: where to keep the programs (default
     :func:`directory`: only inside :func:`use`); ``key_structure=False``: the tag names the arguments' static
     structure too (a caller whose arguments hold a closure, such as PARSEC's filter and its likelihood), which is
-    then left out of the key. Calling it and
+    then left out of the key; ``compiler_options``: XLA's options for its compilation (``jax.jit``'s; not part of
+    the stored program, which is compiled after it is read). Calling it and
     :meth:`lower` take the same arguments as ``fn``. ``loaded`` counts the programs read back from disk,
     ``exported`` the programs traced and written this process.
     """
@@ -156,12 +157,14 @@ class StoredJit:
         tag: str | None,
         folder: str | os.PathLike | None = None,
         key_structure: bool = True,
+        compiler_options: dict | None = None,
     ):
         self.fn = fn
         self.tag = tag
         self.key_structure = key_structure
         self.folder = None if folder is None else pathlib.Path(folder)
-        self._jit = jax.jit(fn)
+        self.compiler_options = dict(compiler_options or {})
+        self._jit = jax.jit(fn, compiler_options=self.compiler_options or None)
         # (folder, argument tree, abstract values) -> (jitted call, output tree), None for plain jit
         self._programs: dict[tuple, tuple | None] = {}
         self.loaded = 0
@@ -215,7 +218,7 @@ class StoredJit:
         # arrays (outputs of other programs) lowers to; left unspecified, such arguments add their sharding to
         # the module, another program to compile (the tracker's step compiled twice in a cold run: 2 × 17–20 s)
         one = jax.sharding.SingleDeviceSharding(jax.devices()[0])
-        return jax.jit(exp.call, in_shardings=one), out_tree
+        return jax.jit(exp.call, in_shardings=one, compiler_options=self.compiler_options or None), out_tree
 
     def _export(self, in_tree, leaves):
         trees = []

@@ -212,3 +212,23 @@ def test_cache_size_counts_the_compiled_variants(tmp_path):
     plain = StoredJit(Counted(), None)
     plain(*_args())
     assert plain._cache_size() == 1
+
+
+@pytest.mark.parametrize("tag", [None, "tag"])
+def test_compiler_options_reach_xla_stored_or_not(tmp_path, tag):
+    """XLA parses the options when it compiles: a value it rejects fails the call and ``lower().compile()`` (so the
+    options are not dropped on either path), and a valid one leaves the results as ``jax.jit``'s."""
+    args = _args()
+    bad = StoredJit(
+        Counted(), tag, folder=tmp_path / "bad", compiler_options={"xla_cpu_use_fusion_emitters": "no"}
+    )
+    with pytest.raises(Exception, match="xla_cpu_use_fusion_emitters"):
+        bad(*args)
+    with pytest.raises(Exception, match="xla_cpu_use_fusion_emitters"):
+        bad.lower(*args).compile()
+    loops = StoredJit(
+        Counted(), tag, folder=tmp_path / "ok", compiler_options={"xla_cpu_use_fusion_emitters": False}
+    )
+    got, want = loops(*args), jax.jit(Counted())(*args)
+    for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(want), strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6)

@@ -47,7 +47,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmocap import parsec
+from jaxmocap import host, parsec
 from jaxmocap.eval import viz
 from jaxmocap.geometry import body as body_mod
 
@@ -244,8 +244,8 @@ def main(argv=None) -> int:
         "|---|---|---|---|\n" + "\n".join(acc) + "\n\n"
         f"## Time per frame, side by side with bodytrack ({common.stamp()})\n\n"
         f"bodytrack built from `{bodytrack.SRC}` (g++ -O2) and run by this script; jaxmocap on JAX {jax.__version__} "
-        f"({dev.platform}), XLA_FLAGS=`{os.environ.get('XLA_FLAGS', '')}`; {os.cpu_count()} cores "
-        f"({bodytrack.cpu()}). {a.rounds} rounds; per frame: bodytrack's interval between its frame lines, ours "
+        f"({dev.platform}), XLA_FLAGS=`{os.environ.get('XLA_FLAGS', '')}`, compiler options "
+        f"{host.loop_fusion_options() or 'XLA defaults'}; {os.cpu_count()} cores ({host.description()}). {a.rounds} rounds; per frame: bodytrack's interval between its frame lines, ours "
         "the host maps + the compiled filter step (seed 0, after compilation), median over the 2 frames.\n\n"
         + bodytrack.table(rows)
         + "\nOurs split (median over the rounds' frames):\n\n"

@@ -19,9 +19,11 @@ for the whole tracker.
 ``--pool-threads 1`` starts XLA's CPU backend with one intra-op thread instead of one per core (XLA sizes the pool
 from the process's affinity mask: the mask is narrowed while the backend starts and restored after).
 
-``--xla-options NAME=VALUE ...`` compiles the same lowered likelihood once more per option (XLA debug options passed
-to ``compile(compiler_options=...)``, e.g. ``xla_cpu_prefer_vector_width=512``) and times each against the default
-compilation in the same process, ``--ab-rounds`` interleaved rounds (the order alternating), with the largest
+The likelihood is compiled as the PARSEC tracker compiles it (:func:`jaxmocap.parsec.likelihood.jit_loglik_batch`,
+with :func:`jaxmocap.host.loop_fusion_options`; the header prints them). ``--xla-options NAME=VALUE ...`` compiles
+the likelihood with XLA's defaults and once more per option (XLA debug options passed to
+``compile(compiler_options=...)``, e.g. ``xla_cpu_prefer_vector_width=512``) and times each against the defaults
+in the same process, ``--ab-rounds`` interleaved rounds (the order alternating), with the largest
 difference of its log-likelihoods from the default's (0: bit-identical).
 
     .venv/bin/python benchmarks/perf/bench_parsec.py --bodytrack-rounds 0 --xla-options xla_cpu_prefer_vector_width=512
@@ -96,7 +98,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 from reference.numpy_baselines import np_loglik  # noqa: E402
 
-from jaxmocap import parsec  # noqa: E402
+from jaxmocap import host, parsec  # noqa: E402
 
 if ARGS is not None and ARGS.pool_threads > 0:  # XLA sizes its intra-op pool from the affinity mask at start
     _allowed = os.sched_getaffinity(0)
@@ -182,12 +184,13 @@ def main(args):
 
         mesh = Mesh(np.array(jax.devices()[: args.devices]), ("p",))
         f = jax.jit(
-            jax.shard_map(ll_fn, mesh=mesh, in_specs=(P("p"), P()), out_specs=P("p"), check_vma=False)
+            jax.shard_map(ll_fn, mesh=mesh, in_specs=(P("p"), P()), out_specs=P("p"), check_vma=False),
+            compiler_options=host.loop_fusion_options(),
         )
         Xj = jax.device_put(Xj, NamedSharding(mesh, P("p")))
         obs = jax.device_put(obs, NamedSharding(mesh, P()))
     else:
-        f = jax.jit(ll_fn)
+        f = pl.jit_loglik_batch(shape, cams)
     t0 = time.perf_counter()
     ll = np.asarray(f(Xj, obs))
     compile_s = time.perf_counter() - t0
@@ -208,6 +211,7 @@ def main(args):
         f"  devices: {jax.devices()[: args.devices]}, cores visible: {os.cpu_count()}, XLA intra-op threads: {pool}, "
         f"load average: {os.getloadavg()}"
     )
+    print(f"  CPU: {host.description()}; XLA options: {host.loop_fusion_options() or 'defaults'}")
     print(f"  JAX    compile+first run {compile_s:.1f} s")
     print(
         f"  JAX    µs/particle/layer: median {us(med):.2f}  min {us(best):.2f}  (process CPU {us(cpu):.2f})"
@@ -223,7 +227,7 @@ def main(args):
         f"exactly equal {np.mean(ll[ok] == ll_np[ok].astype(np.float32)):.3f}"
     )
     if args.xla_options:
-        low = f.lower(Xj, obs)
+        low = jax.jit(ll_fn).lower(Xj, obs)
         progs = {"default": low.compile()}
         progs.update({o: low.compile(compiler_options=_option(o)) for o in args.xla_options})
         ab_table(progs, Xj, obs, args.ab_rounds, "XLA compiler options")
@@ -232,11 +236,15 @@ def main(args):
         for c in args.edge_chunks:
             chunk = tuple(int(v) for v in c.split(","))
             cfg = pl.Config(chunk=chunk[0] if len(chunk) == 1 else chunk)
-            progs[f"chunk={c}"] = jax.jit(pl.make_loglik_batch(shape, cams, cfg))
+            progs[f"chunk={c}"] = pl.jit_loglik_batch(shape, cams, cfg)
         ab_table(progs, Xj, obs, args.ab_rounds, "Edge samples per loop iteration (Config.chunk)")
     if args.against:
         at = likelihood_at(args.against)
-        progs = {args.against: jax.jit(at.make_loglik_batch(shape, cams)), "this checkout": f}
+        options = host.loop_fusion_options()
+        progs = {
+            args.against: jax.jit(at.make_loglik_batch(shape, cams), compiler_options=options),
+            "this checkout": f,
+        }
         ab_table(progs, Xj, obs, args.ab_rounds, f"The likelihood at {args.against} and now")
     if args.bodytrack_rounds > 0:
         bodytrack.build()

@@ -12,7 +12,7 @@ it times, alternating which of the two goes first from round to round:
 
 * **likelihood**: µs per particle of one evaluation of ``--particles`` states of frame 0 of sequenceB_2 around its
   initial pose: bodytrack's ``ll_bench`` (``TrackingModel::LogLikelihood`` particle by particle; median of its
-  repeats) against :func:`jaxmocap.parsec.likelihood.make_loglik_batch` jitted (median of the same number of calls,
+  repeats) against :func:`jaxmocap.parsec.likelihood.jit_loglik_batch` (median of the same number of calls,
   compiled before the first round); also the process CPU time per particle of each side (all threads);
 * **tracker**, per frame at 4000 × 5 and 1000 × 3: ``bodytrack-serial`` and ``bodytrack-pthreads`` (2 threads),
   each in its own A/B pair, on the two frames of sequenceB_2 (4 cameras, thread model 4 = serial or 2 =
@@ -48,7 +48,7 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from jaxmocap import parsec  # noqa: E402
+from jaxmocap import host, parsec  # noqa: E402
 from jaxmocap.parsec import likelihood as pl  # noqa: E402
 
 TRACKER_CONFIGS = ((4000, 5), (1000, 3))
@@ -65,7 +65,7 @@ class Jaxmocap:
         x0, std = seq.initial_pose, seq.pose_std
         X = (x0 + np.random.default_rng(0).normal(size=(particles, 31)) * std).astype(np.float32)
         self.X = jnp.asarray(X)
-        self.ll = jax.jit(pl.make_loglik_batch(seq.shape, seq.cameras))
+        self.ll = pl.jit_loglik_batch(seq.shape, seq.cameras)
         self.ll(self.X, self.obs0).block_until_ready()
         self.trackers = {c: bt.Tracker(seq, *c) for c in TRACKER_CONFIGS}
         for c in TRACKER_CONFIGS:  # compile
@@ -112,8 +112,9 @@ def to_markdown(rows: list[dict], particles: int, repeats: int) -> str:
     """The setting, then :func:`bodytrack.table`."""
     head = (
         f"bodytrack built from `{bt.SRC}` (g++ -O2, serial); jaxmocap on JAX {jax.__version__} "
-        f"({jax.devices()[0].platform}), XLA_FLAGS=`{os.environ.get('XLA_FLAGS', '')}`; {os.cpu_count()} cores "
-        f"({bt.cpu()}); {common.stamp()}. Likelihood: {particles} particles, median of {repeats} calls each side."
+        f"({jax.devices()[0].platform}), XLA_FLAGS=`{os.environ.get('XLA_FLAGS', '')}`, compiler options "
+        f"{host.loop_fusion_options() or 'XLA defaults'}; {os.cpu_count()} cores ({host.description()}); "
+        f"{common.stamp()}. Likelihood: {particles} particles, median of {repeats} calls each side."
     )
     return head + "\n\n" + bt.table(rows)
 

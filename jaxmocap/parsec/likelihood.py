@@ -36,8 +36,10 @@ does not: several times slower). Inside a loop iteration every sample is a separ
 into one packed integer counter per lane (no reduction ops, which XLA on CPU materialises), and gathers use
 ``mode="fill"``; XLA compiles a loop iteration into one fused kernel, 8 lanes per vector, the pixel reads one
 lane at a time. The loop lengths are reduced once before each loop, and the sphere test uses its static sphere
-counts (:func:`_static_sphere_counts`, NumPy only, so that they stay concrete inside ``jit``). See
-``benchmarks/perf/bench_parsec.py``.
+counts (:func:`_static_sphere_counts`, NumPy only, so that they stay concrete inside ``jit``). On an x86 CPU
+without AVX-512 the programs that evaluate it are compiled with XLA's loop fusion emitter
+(:func:`jaxmocap.host.loop_fusion_options`: 1.7× there; :func:`jit_loglik_batch`, the PARSEC tracker's step).
+See ``benchmarks/perf/bench_parsec.py``.
 """
 
 from __future__ import annotations
@@ -51,6 +53,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxmocap import host
 from jaxmocap.parsec import cylinders
 from jaxmocap.parsec.cameras import Cameras, _trail
 from jaxmocap.parsec.files import NUM_DOFS, NUM_PARTS, BodyShape
@@ -68,6 +71,7 @@ __all__ = [
     "log_likelihood",
     "log_likelihood_batch",
     "make_loglik_batch",
+    "jit_loglik_batch",
     "INVALID",
 ]
 
@@ -541,3 +545,9 @@ def make_loglik_batch(shape: BodyShape, cams: Cameras, config: Config = Config()
         return log_likelihood_batch(shape, cams, observation, X, config).loglik
 
     return loglik_batch
+
+
+def jit_loglik_batch(shape: BodyShape, cams: Cameras, config: Config = Config()) -> Callable:
+    """:func:`make_loglik_batch` jitted with this CPU's options for it (:func:`jaxmocap.host.loop_fusion_options`):
+    ``f(X (N, 31), observation) -> (N,)``."""
+    return jax.jit(make_loglik_batch(shape, cams, config), compiler_options=host.loop_fusion_options())

@@ -31,7 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmocap import parsec
+from jaxmocap import host, parsec
 from jaxmocap.errors import MocapInputError
 from jaxmocap.filters import APF
 from jaxmocap.filters.base import State
@@ -66,7 +66,7 @@ def make_loglik(shape: parsec.BodyShape, cams: parsec.Cameras) -> Callable:
     The likelihood is one jitted function: the weighted start and the filter step, which both call it on ``(N, 31)``
     particles, share its trace (a warm one-frame run's preparation 3.9 s instead of 5.0 s, ``parsec_track.md``)."""
     batch = pl.make_loglik_batch(shape, cams)
-    raw = jax.jit(lambda X, obs: batch(X, obs))
+    raw = jax.jit(lambda X, obs: batch(X, obs))  # called inside the run's programs: their options apply
 
     def loglik(X, obs, layer=None):
         ll = raw(X, obs)
@@ -189,6 +189,7 @@ class ParsecSetup:
             lambda k, x, ob: weighted_start(filt, self._loglik, k, x, std, ob),
             "weighted start " + self.program_tag(),
             key_structure=not self.tag_names_arguments,
+            compiler_options=self.compiler_options(),
         )
         return init(key, _f32(x0), obs)
 
@@ -204,6 +205,10 @@ class ParsecSetup:
         for a in (shape.limbs, shape.lengths, *cams, self.std):
             h.update(np.ascontiguousarray(np.asarray(a, np.float64)).tobytes())
         return f"parsec31 apf {self.num_particles}x{self.layers} {h.hexdigest()}"
+
+    def compiler_options(self) -> dict:
+        """XLA's options for the run's step: the likelihood's (:func:`jaxmocap.host.loop_fusion_options`)."""
+        return host.loop_fusion_options()
 
     def detection(self, fd, masks, last_good):
         return None

@@ -77,6 +77,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxmocap import host
 from jaxmocap.choices import VELOCITY_DOFS
 from jaxmocap.errors import MocapInputError
 from jaxmocap.eval.mixtures import count_layer_modes
@@ -189,13 +190,14 @@ class TrackingLoop:
         # constant of the program: a filter that differs only in data reuses the compiled step. Inside
         # ``stored_programs.use`` (the command line, ``jaxmocap.track``) the traced step is kept on disk under
         # the setup's ``program_tag`` — what the step closes over besides its arguments — and the arguments'
-        # structure (:mod:`jaxmocap.stored_programs`); a setup without a tag traces every run
-        tag = getattr(self.setup, "program_tag", None)
-        tag = None if tag is None else tag()
+        # structure (:mod:`jaxmocap.stored_programs`); a setup without a tag traces every run. A setup may name
+        # XLA's options for its step (``compiler_options``: PARSEC's, :func:`jaxmocap.host.loop_fusion_options`)
+        tag, options = (getattr(self.setup, name, None) for name in ("program_tag", "compiler_options"))
         self._jitted = self._step = StoredJit(
             step,
-            None if tag is None else "step " + tag,
+            None if tag is None else "step " + tag(),
             key_structure=not getattr(self.setup, "tag_names_arguments", False),
+            compiler_options=None if options is None else options(),
         )
 
     @property
@@ -662,6 +664,8 @@ class TrackingLoop:
             "step_traces": self.trace_count,
             "compile_s": self.compile_s,
             "compiled_after_first_frame": stats["compiled_after_first_frame"],
+            "cpu": host.description(),  # what XLA compiled for: speeds compare only on the same CPU
+            "xla_options": self._jitted.compiler_options,
             "model": model.name,
             "filter": self.o.filter,
             "particles": setup.num_particles,
@@ -791,9 +795,6 @@ def layer_records(layers) -> list[dict]:
     out = []
     for idx in np.ndindex(*shape):
         rec = {k: (int(v[idx]) if v.dtype.kind in "iu" else float(v[idx])) for k, v in arrays.items()}
-        if len(shape) == 2:
-            rec["partition"], rec["layer"] = int(idx[0]), int(idx[1])
-        else:
-            rec["layer"] = int(idx[0])
+        rec.update(zip(("partition", "layer")[-len(shape) :], map(int, idx), strict=True))  # (K, L) or (L,)
         out.append(rec)
     return out

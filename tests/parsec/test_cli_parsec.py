@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxmocap import parsec
+from jaxmocap import host, parsec
 from jaxmocap.cli import main
 from jaxmocap.errors import MocapInputError
 from jaxmocap.geometry import body
@@ -168,6 +168,8 @@ def test_a_second_run_reads_its_programs_back(tmp_path):
         )
         assert proc.returncode == 0, proc.stderr[-3000:]
         summary = json.loads((tmp_path / name / "diagnostics.json").read_text())["summary"]
+        # PARSEC's step compiled with this CPU's options for its likelihood, recorded beside the CPU
+        assert (summary["xla_options"], summary["cpu"]) == (host.loop_fusion_options(), host.description())
         return export.load_poses(tmp_path / name)["state"], (summary["step_traces"], summary["compilations"])
 
     first, n1 = run("first", str(cache))

@@ -1,0 +1,96 @@
+"""The CPU this process runs on, as XLA's CPU backend sees it.
+
+XLA compiles every program for the CPU it finds when the process starts (its instruction-set extensions, through
+LLVM's host detection), so the same source and the same JAX can run very different machine code on two machines of
+the same name: a cloud "AMD EPYC" may be a Zen 3 without AVX-512 on one day and a newer core with it on another.
+Speed figures are only comparable between runs on the same :func:`description`.
+
+* :func:`vector_isa` — the widest x86 vector extension the CPU reports (``"AVX-512"``, ``"AVX2"``, ``"AVX"``,
+  ``"SSE"``), or the architecture's name elsewhere (``"aarch64"``).
+* :func:`description` — ``"AMD EPYC (family 25, model 1; AVX2, no AVX-512)"``: the model name, the x86 family and
+  model numbers (they tell two CPUs of one marketing name apart) and :func:`vector_isa`.
+* :func:`loop_fusion_options` — the XLA compiler options of a program that runs faster with XLA's loop fusion
+  emitter than with its default fusion emitters on a CPU without AVX-512 (PARSEC's likelihood).
+
+Both read ``/proc/cpuinfo`` once (Linux); elsewhere they fall back to :mod:`platform`.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import pathlib
+import platform
+
+__all__ = ["LOOP_FUSION", "description", "loop_fusion_options", "vector_isa"]
+
+#: XLA's CPU compiler option that selects its loop fusion emitter instead of the fusion emitters (its default).
+LOOP_FUSION = {"xla_cpu_use_fusion_emitters": False}
+
+
+@functools.lru_cache(maxsize=1)
+def _cpuinfo() -> dict[str, str]:
+    """The first processor's ``key: value`` lines of ``/proc/cpuinfo`` (empty where there is none)."""
+    fields: dict[str, str] = {}
+    try:
+        text = pathlib.Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return fields
+    for line in text.splitlines():
+        if not line.strip():
+            if fields:
+                break  # the first processor is enough: they are alike
+            continue
+        key, _, value = line.partition(":")
+        fields.setdefault(key.strip(), value.strip())
+    return fields
+
+
+def vector_isa() -> str:
+    """The widest vector extension of an x86 CPU (``"AVX-512"`` needs ``avx512f``), else the architecture."""
+    arch = platform.machine()
+    flags = set(_cpuinfo().get("flags", "").split())
+    if arch not in ("x86_64", "AMD64", "i686", "i386") or not flags:
+        return arch or "unknown"
+    for flag, name in (("avx512f", "AVX-512"), ("avx2", "AVX2"), ("avx", "AVX")):
+        if flag in flags:
+            return name
+    return "SSE"
+
+
+def description() -> str:
+    """``"<model name> (family F, model M; <ISA>[, no AVX-512])"``: enough to tell apart two CPUs that XLA compiles
+    different code for."""
+    info = _cpuinfo()
+    name = info.get("model name") or platform.processor() or platform.machine() or "CPU"
+    isa = vector_isa()
+    if isa in ("AVX2", "AVX", "SSE"):
+        isa += ", no AVX-512"
+    parts = (
+        [f"family {info['cpu family']}, model {info['model']}"]
+        if "cpu family" in info and "model" in info
+        else []
+    )
+    return f"{name} ({'; '.join(parts + [isa])})"
+
+
+def loop_fusion_options() -> dict[str, bool]:
+    """Compiler options (``jax.jit(..., compiler_options=...)``) for a gather-bound particle program:
+    :data:`LOOP_FUSION` on an x86 CPU without AVX-512, ``{}`` (XLA's default) elsewhere or when ``XLA_FLAGS``
+    names ``xla_cpu_use_fusion_emitters`` (the user's choice wins).
+
+    Why: on an AVX2 CPU (AMD EPYC, family 25, model 1), XLA's fusion emitters turn PARSEC's per-sample edge loops
+    (a pixel index, an unsigned bounds test and a one-byte gather per sample, :mod:`jaxmocap.parsec.likelihood`)
+    into scalar code of ≈ 210 k instructions per particle and layer (``valgrind --tool=callgrind``) that runs at
+    about 1.6 instructions per cycle; the loop fusion emitter's code, 193 k instructions, ran the likelihood
+    1.69× faster in one process (``bench_parsec.py --xla-options xla_cpu_use_fusion_emitters=false``, five
+    interleaved rounds, 2026-11-29) and the whole PARSEC tracker at 4000 × 5 1.7× faster (``vs_bodytrack.py``).
+    The same switch made the default tracker's step (other cues, no byte gathers) slower on that CPU (stereo
+    11.5–13.3 against 14.2 frames/s, four cameras 6.4–7.6 against 9.6, ``track_rate.py`` in separate processes),
+    so it is a choice per program, not per process. Elsewhere the default is kept: this project has not measured a
+    CPU with AVX-512 knowingly, but the fast runs recorded on 2026-11-22 and 2026-11-25 (the likelihood at
+    4.1–5.9 µs of CPU per particle, which cannot be 210 k instructions at any clock: other machine code, for
+    another CPU) measured the loop emitter at 0.24× the default (an earlier version of the likelihood)."""
+    if "xla_cpu_use_fusion_emitters" in os.environ.get("XLA_FLAGS", ""):
+        return {}
+    return dict(LOOP_FUSION) if vector_isa() in ("AVX2", "AVX", "SSE") else {}
