@@ -200,6 +200,13 @@ SCRIPTS: dict[str, Script] = {
         "--rounds 5 --out benchmarks/results/vs_bodytrack.md",
         writes=("vs_bodytrack.md",),
     ),
+    "instructions": Script(
+        "Instructions per particle of PARSEC's likelihood, ours and bodytrack's (valgrind; load-independent)",
+        "perf/instructions.py",
+        "--out benchmarks/results/instructions.md",
+        writes=("instructions.md",),
+        slow=True,
+    ),
     "scale": Script(
         "Scaling beyond one device (sharded particles, batched runs, memory)", "perf/bench_scale.py"
     ),
