@@ -76,8 +76,8 @@ def description() -> str:
 
 def loop_fusion_options() -> dict[str, bool]:
     """Compiler options (``jax.jit(..., compiler_options=...)``) for a gather-bound particle program:
-    :data:`LOOP_FUSION` on an x86 CPU without AVX-512, ``{}`` (XLA's default) elsewhere or when ``XLA_FLAGS``
-    names ``xla_cpu_use_fusion_emitters`` (the user's choice wins).
+    :data:`LOOP_FUSION` when JAX compiles for an x86 CPU without AVX-512, ``{}`` (XLA's default) elsewhere (an
+    accelerator, another CPU) or when ``XLA_FLAGS`` names ``xla_cpu_use_fusion_emitters`` (the user's choice wins).
 
     Why: on an AVX2 CPU (AMD EPYC, family 25, model 1), XLA's fusion emitters turn PARSEC's per-sample edge loops
     (a pixel index, an unsigned bounds test and a one-byte gather per sample, :mod:`jaxmocap.parsec.likelihood`)
@@ -92,6 +92,8 @@ def loop_fusion_options() -> dict[str, bool]:
     CPU with AVX-512 knowingly, but the fast runs recorded on 2026-11-22 and 2026-11-25 (the likelihood at
     4.1–5.9 µs of CPU per particle, which cannot be 190 k instructions at any clock: other machine code, for
     another CPU) measured the loop emitter at 0.24× the default (an earlier version of the likelihood)."""
-    if "xla_cpu_use_fusion_emitters" in os.environ.get("XLA_FLAGS", ""):
-        return {}
+    import jax
+
+    if jax.default_backend() != "cpu" or "xla_cpu_use_fusion_emitters" in os.environ.get("XLA_FLAGS", ""):
+        return {}  # programs compiled for an accelerator, or the user's choice
     return dict(LOOP_FUSION) if vector_isa() in ("AVX2", "AVX", "SSE") else {}

@@ -88,3 +88,12 @@ def test_loop_fusion_is_chosen_on_x86_without_avx512_unless_xla_flags_say(
     monkeypatch.setattr(host, "vector_isa", lambda: isa)
     monkeypatch.setenv("XLA_FLAGS", xla_flags)
     assert host.loop_fusion_options() == expected
+
+
+def test_no_cpu_option_for_programs_compiled_for_an_accelerator(monkeypatch):
+    import jax
+
+    monkeypatch.setattr(host, "vector_isa", lambda: "AVX2")
+    monkeypatch.delenv("XLA_FLAGS", raising=False)
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    assert host.loop_fusion_options() == {}
