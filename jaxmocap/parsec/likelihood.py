@@ -34,11 +34,12 @@ such a cylinder (an implausible particle) is the sampling sparser than bodytrack
 intermediate array, where XLA on CPU vectorises the per-sample arithmetic (with ``vmap``'s leading batch axis it
 does not: several times slower). Inside a loop iteration every sample is a separate elementwise step accumulating
 into one packed integer counter per lane (no reduction ops, which XLA on CPU materialises), and the pixel reads
-promise in-bounds indices (a masked sample reads pixel 0); XLA compiles a loop iteration into one fused kernel. The loop lengths are reduced once before each loop, and the sphere test uses its static sphere
-counts (:func:`_static_sphere_counts`, NumPy only, so that they stay concrete inside ``jit``). On an x86 CPU
-without AVX-512 the programs that evaluate it are compiled with XLA's loop fusion emitter
+promise in-bounds indices (a masked sample reads pixel 0); XLA compiles a loop iteration into one fused kernel.
+The loop lengths are reduced once before each loop, and the sphere test uses its static sphere counts
+(:func:`_static_sphere_counts`, NumPy only, so that they stay concrete inside ``jit``). On an x86 CPU without
+AVX-512 the programs that evaluate it are compiled with XLA's loop fusion emitter
 (:func:`jaxmocap.host.loop_fusion_options`: 1.7× there; :func:`jit_loglik_batch`, the PARSEC tracker's step).
-See ``benchmarks/perf/bench_parsec.py``.
+See ``benchmarks/perf/bench_parsec.py`` and ``benchmarks/perf/instructions.py``.
 """
 
 from __future__ import annotations
