@@ -546,8 +546,8 @@ def machine_block(load: tuple[float, float, float]) -> str:
 
     devices = ", ".join(sorted({f"{d.platform}" for d in jax.devices()}))
     return (
-        f"Machine: {host.description()}, {os.cpu_count()} cores, load average at start {load[0]:.1f} / {load[1]:.1f} / "
-        f"{load[2]:.1f} (1 / 5 / 15 min); JAX devices: {devices}.  \n"
+        f"Machine: {host.description()}, {os.cpu_count()} cores, load average at start {load[0]:.1f} / "
+        f"{load[1]:.1f} / {load[2]:.1f} (1 / 5 / 15 min); JAX devices: {devices}.  \n"
         f"Versions: Python {platform.python_version()}, JAX {jax.__version__}, jaxlib {jaxlib.__version__}, "
         f"NumPy {np.__version__}, OpenCV {cv2.__version__}.  \n"
         f"Date: {common.stamp()}."

@@ -82,15 +82,16 @@ def loop_fusion_options() -> dict[str, bool]:
     Why: on an AVX2 CPU (AMD EPYC, family 25, model 1), XLA's fusion emitters turn PARSEC's per-sample edge loops
     (a pixel index, an unsigned bounds test and a one-byte gather per sample, :mod:`jaxmocap.parsec.likelihood`)
     into scalar code of ≈ 190 k instructions per particle and layer (``valgrind --tool=callgrind``,
-    ``benchmarks/perf/instructions.py``) that runs at about 1.6 instructions per cycle; the loop fusion emitter's
-    code, 171 k instructions, ran the likelihood 1.69× faster in one process (``bench_parsec.py --xla-options
-    xla_cpu_use_fusion_emitters=false``, five interleaved rounds, 2026-11-29) and the whole PARSEC tracker at
-    4000 × 5 1.7× faster (``vs_bodytrack.py``). The same switch made the default tracker's step (other cues,
+    ``benchmarks/perf/instructions.py``; 210 k before the in-bounds pixel reads, about 1.6 instructions per cycle
+    at the CPU's nominal 2.45 GHz); the loop fusion emitter's code, 171 k instructions, ran the likelihood 1.69×
+    faster in one process (``bench_parsec.py --xla-options xla_cpu_use_fusion_emitters=false``, five interleaved
+    rounds, 2026-11-29) and the whole PARSEC tracker at 4000 × 5 1.7× faster (``vs_bodytrack.py``). The same switch made the default tracker's step (other cues,
     other loops) slower on that CPU (stereo 11.5–13.3 against 14.2 frames/s, four cameras 6.4–7.6 against 9.6,
-    ``track_rate.py`` in separate processes), so it is a choice per program, not per process. Elsewhere the default is kept: this project has not measured a
-    CPU with AVX-512 knowingly, but the fast runs recorded on 2026-11-22 and 2026-11-25 (the likelihood at
-    4.1–5.9 µs of CPU per particle, which cannot be 190 k instructions at any clock: other machine code, for
-    another CPU) measured the loop emitter at 0.24× the default (an earlier version of the likelihood)."""
+    ``track_rate.py`` in separate processes), so it is a choice per program, not per process. Elsewhere the
+    default is kept: this project has not measured a CPU with AVX-512 knowingly, but the fast runs recorded on
+    2026-11-22 and 2026-11-25 (the likelihood at 4.1–5.9 µs of CPU per particle, which cannot be 190 k instructions
+    at any clock: other machine code, for another CPU) measured the loop emitter at 0.24× the default (an earlier
+    version of the likelihood)."""
     import jax
 
     if jax.default_backend() != "cpu" or "xla_cpu_use_fusion_emitters" in os.environ.get("XLA_FLAGS", ""):

@@ -245,8 +245,9 @@ def main(argv=None) -> int:
         f"## Time per frame, side by side with bodytrack ({common.stamp()})\n\n"
         f"bodytrack built from `{bodytrack.SRC}` (g++ -O2) and run by this script; jaxmocap on JAX {jax.__version__} "
         f"({dev.platform}), XLA_FLAGS=`{os.environ.get('XLA_FLAGS', '')}`, compiler options "
-        f"{host.loop_fusion_options() or 'XLA defaults'}; {os.cpu_count()} cores ({host.description()}). {a.rounds} rounds; per frame: bodytrack's interval between its frame lines, ours "
-        "the host maps + the compiled filter step (seed 0, after compilation), median over the 2 frames.\n\n"
+        f"{host.loop_fusion_options() or 'XLA defaults'}; {os.cpu_count()} cores ({host.description()}). "
+        f"{a.rounds} rounds; per frame: bodytrack's interval between its frame lines, ours the host maps + the "
+        "compiled filter step (seed 0, after compilation), median over the 2 frames.\n\n"
         + bodytrack.table(rows)
         + "\nOurs split (median over the rounds' frames):\n\n"
         "| config | condition | runs | filter step s | edge/fg maps s | total s |\n|---|---|---|---|---|---|\n"

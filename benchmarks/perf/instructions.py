@@ -80,8 +80,8 @@ SETTLE = 10.0
 
 
 def _total(path: pathlib.Path) -> int:
-    """The instruction total of a callgrind output file: its ``totals:`` line (``summary:`` counts only what ran
-    with instrumentation on from the start, 0 under ``--instr-atstart=no``)."""
+    """The instruction total of a callgrind output file: its ``totals:`` line (under ``--instr-atstart=no`` the
+    ``summary:`` line read 0 here while ``totals:`` held the count), else ``summary:``."""
     text = path.read_text()
     for key in ("totals", "summary"):
         m = re.search(rf"^{key}:\s+(\d+)", text, re.M)
@@ -165,6 +165,8 @@ def main(argv=None):
             count, mean_ll = jaxmocap_count(options, a.particles, a.calls, work)
             label = (host.loop_fusion_options() or "XLA defaults") if options is None else options
             rows.append((f"jaxmocap `{name}` ({label})", count / evals, mean_ll))
+    if any(per <= 0 for _, per, _ in rows):
+        sys.exit("a count is zero: valgrind did not apply the instrumentation request (raise SETTLE)")
     base = rows[0][1]
     lines = [
         f"# Instructions per particle: PARSEC's likelihood, jaxmocap and bodytrack\n\n"
@@ -174,8 +176,6 @@ def main(argv=None):
         "| program | instructions per particle | ÷ bodytrack | mean log-likelihood |",
         "|---|---|---|---|",
     ]
-    if any(per <= 0 for _, per, _ in rows):
-        sys.exit("a count is zero: valgrind did not apply the instrumentation request (raise SETTLE)")
     for name, per, mean_ll in rows:
         ll = "" if mean_ll is None else f"{mean_ll:.4f}"
         lines.append(f"| {name} | {per:,.0f} | {per / base:.2f} | {ll} |")
@@ -188,8 +188,7 @@ def main(argv=None):
     text = "\n".join(lines) + "\n"
     print(text)
     if a.out:
-        cmd = "python benchmarks/perf/instructions.py" + (f" --out {a.out}" if a.out else "")
-        common.write_result(a.out, text, cmd)
+        common.write_result(a.out, text, f"python benchmarks/perf/instructions.py --out {a.out}")
 
 
 if __name__ == "__main__":
