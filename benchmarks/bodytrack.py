@@ -11,6 +11,7 @@ average is below 1.0.
 from __future__ import annotations
 
 import contextlib
+import importlib
 import json
 import os
 import pathlib
@@ -123,15 +124,18 @@ class TrackerRun(NamedTuple):
 class Tracker:
     """jaxmocap's PARSEC tracker at ``particles`` × ``layers``: :func:`jaxmocap.parsec.annealing.parsec_apf` with the
     PARSEC likelihood and bodytrack's initialisation (``InitialPose + N(0, σ_0)`` weighted against frame 0 with its
-    β), the start and the step each jitted once (compiled by the first :meth:`run`)."""
+    β), the start and the step each jitted once (compiled by the first :meth:`run`). ``package``: the ``jaxmocap``
+    package to build it from (default this checkout's; :func:`common.package_at` for another revision's)."""
 
-    def __init__(self, seq, particles: int, layers: int):
+    def __init__(self, seq, particles: int, layers: int, package=None):
         import jax
         import jax.numpy as jnp
 
-        from jaxmocap import host
-        from jaxmocap.parsec import track as ptrack
-        from jaxmocap.parsec.annealing import parsec_apf
+        if package is None:  # this checkout's; or another revision's (``common.package_at``)
+            import jaxmocap as package
+        host = importlib.import_module(f"{package.__name__}.host")
+        ptrack = importlib.import_module(f"{package.__name__}.parsec.track")
+        parsec_apf = importlib.import_module(f"{package.__name__}.parsec.annealing").parsec_apf
 
         self.seq, self._jax = seq, jax
         std = jnp.asarray(seq.pose_std, jnp.float32)

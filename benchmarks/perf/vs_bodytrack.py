@@ -12,8 +12,9 @@ it times, alternating which of the two goes first from round to round:
 
 * **likelihood**: µs per particle of one evaluation of ``--particles`` states of frame 0 of sequenceB_2 around its
   initial pose: bodytrack's ``ll_bench`` (``TrackingModel::LogLikelihood`` particle by particle; median of its
-  repeats) against :func:`jaxmocap.parsec.likelihood.jit_loglik_batch` (median of the same number of calls,
-  compiled before the first round); also the process CPU time per particle of each side (all threads);
+  repeats after an untimed first pass) against :func:`jaxmocap.parsec.likelihood.jit_loglik_batch` (median of
+  the same number of calls after an untimed one, compiled before the first round); also the process CPU time
+  per particle of each side (all threads);
 * **tracker**, per frame at 4000 × 5 and 1000 × 3: ``bodytrack-serial`` and ``bodytrack-pthreads`` (2 threads),
   each in its own A/B pair, on the two frames of sequenceB_2 (4 cameras, thread model 4 = serial or 2 =
   pthreads, no BMP output), its per-frame time the median interval between the "Processing
@@ -27,7 +28,11 @@ Each round records the 1-minute load average when it starts (``os.getloadavg``);
 only when that load is below 1.0, otherwise *loaded* with the load. The ratio is bodytrack's time over jaxmocap's
 (above 1: jaxmocap faster); the report gives it per round and its median per condition.
 
-    python benchmarks/perf/vs_bodytrack.py [--rounds 5] [--particles 4000] [--out benchmarks/results/vs_bodytrack.md]
+With ``--against REV`` the trackers are also built from the package of git revision ``REV``
+(:func:`common.package_at`) and timed against this checkout's, interleaved in both conditions
+(:func:`against_table`).
+
+    python benchmarks/perf/vs_bodytrack.py [--rounds 5] [--particles 4000] [--against REV] [--out benchmarks/results/vs_bodytrack.md]
 """
 
 from __future__ import annotations
@@ -58,7 +63,7 @@ class Jaxmocap:
     """The jaxmocap side, compiled once: the likelihood of ``particles`` states of frame 0 and the PARSEC tracker
     at each configuration of :data:`TRACKER_CONFIGS`."""
 
-    def __init__(self, particles: int):
+    def __init__(self, particles: int, against: str | None = None):
         self.seq = parsec.load_sequence(bt.SEQ)
         seq = self.seq
         self.obs0 = seq.observation(0)
@@ -70,10 +75,17 @@ class Jaxmocap:
         self.trackers = {c: bt.Tracker(seq, *c) for c in TRACKER_CONFIGS}
         for c in TRACKER_CONFIGS:  # compile
             self.frames(c)
+        self.against = {}
+        if against is not None:  # the same trackers built from the package of revision ``against``
+            package = sys.modules[common.package_at(against, "parsec.track").__name__.split(".")[0]]
+            self.against = {c: bt.Tracker(seq, *c, package=package) for c in TRACKER_CONFIGS}
+            for c in TRACKER_CONFIGS:
+                self.against[c].run(0)
 
     def likelihood_us(self, repeats: int) -> tuple[float, float]:
-        """Median wall and process-CPU µs per particle over ``repeats`` calls."""
-        t = common.timed_calls(lambda: self.ll(self.X, self.obs0).block_until_ready(), repeats)
+        """Median wall and process-CPU µs per particle over ``repeats`` calls after one untimed call (as
+        ``ll_bench`` discards its first pass)."""
+        t = common.timed_calls(lambda: self.ll(self.X, self.obs0).block_until_ready(), repeats, warmup=1)
         n = self.X.shape[0]
         return float(np.median(t.wall)) / n * 1e6, float(np.median(t.cpu)) / n * 1e6
 
@@ -81,12 +93,50 @@ class Jaxmocap:
         """Seconds per frame, median over the frames: host maps of frame ``t`` + the compiled filter step."""
         return self.trackers[config].run(seed).per_frame
 
+    def frames_at(self, name: str, config: tuple[int, int], seed: int = 0) -> float:
+        """:meth:`frames` of this checkout (``name`` "this checkout") or of the ``against`` revision."""
+        trackers = self.trackers if name == THIS else self.against
+        return trackers[config].run(seed).per_frame
 
-def run(rounds: int, particles: int, repeats: int, log=print) -> list[dict]:
-    """Every measurement (:func:`bodytrack.side_by_side` rows; µs per particle or seconds per frame)."""
+
+THIS = "this checkout"
+
+
+def against_table(jm: Jaxmocap, rev: str, rounds: int, log=print) -> str:
+    """The tracker per frame, this checkout against revision ``rev``, interleaved
+    (:func:`bodytrack.revisions_side_by_side`): per configuration and condition the ratio ``rev ÷ this`` per
+    round (above 1: this checkout faster) and its median."""
+    names = [THIS, rev]
+    jobs = {f"{n} × {ly}": (lambda name, c=(n, ly): jm.frames_at(name, c)) for n, ly in TRACKER_CONFIGS}
+    rows = bt.revisions_side_by_side(rounds, names, jobs, log=log)
+    lines = [
+        f"Tracker s/frame, this checkout against `{rev}` (its `jaxmocap/` package), interleaved in one process; "
+        f"ratio = {rev} ÷ this checkout (above 1: this checkout faster).",
+        "",
+        f"| tracker | condition | load (min–max) | this checkout (median) | {rev} (median) | ratio per round | "
+        "median ratio |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for job in jobs:
+        for cond in bt.CONDITIONS:
+            sel = [r for r in rows if r["command"] == job and r["condition"] == cond]
+            ratios = [r[rev] / r[THIS] for r in sel]
+            loads = [r["load"] for r in sel]
+            lines.append(
+                f"| {job} | {cond} | {min(loads):.1f}–{max(loads):.1f} | "
+                f"{np.median([r[THIS] for r in sel]):.4g} | {np.median([r[rev] for r in sel]):.4g} | "
+                + ", ".join(f"{q:.2f}" for q in ratios)
+                + f" | **{np.median(ratios):.2f}** |"
+            )
+    return "\n".join(lines)
+
+
+def run(rounds: int, particles: int, repeats: int, log=print, against: str | None = None):
+    """Every measurement (:func:`bodytrack.side_by_side` rows; µs per particle or seconds per frame), and the
+    :func:`against_table` of revision ``against`` (None without one)."""
     bt.build()
     t0 = time.perf_counter()
-    jm = Jaxmocap(particles)
+    jm = Jaxmocap(particles, against)
     log(f"jaxmocap compiled in {time.perf_counter() - t0:.0f} s")
     lw, lc = "likelihood µs/particle", "likelihood process-CPU µs/particle"
 
@@ -105,7 +155,8 @@ def run(rounds: int, particles: int, repeats: int, log=print) -> list[dict]:
                 lambda n=n, ly=ly, m=model: float(np.median(bt.bodytrack_frames(n, ly, model=m))),
                 lambda c=(n, ly): jm.frames(c),
             )
-    return bt.side_by_side(jobs, rounds, log)
+    rows = bt.side_by_side(jobs, rounds, log)
+    return rows, (against_table(jm, against, rounds, log) if against is not None else None)
 
 
 def to_markdown(rows: list[dict], particles: int, repeats: int) -> str:
@@ -125,12 +176,21 @@ def main(argv=None) -> int:
     ap.add_argument("--particles", type=int, default=4000)
     ap.add_argument("--repeats", type=int, default=5, help="likelihood calls per round, each side")
     ap.add_argument("--out", type=pathlib.Path, default=None, help="write the Markdown report here")
+    ap.add_argument(
+        "--against", metavar="REV", help="also time the tracker built from the package of git revision REV"
+    )
     a = ap.parse_args(argv)
-    rows = run(a.rounds, a.particles, a.repeats, log=lambda s: print(s, flush=True))
+    rows, versus = run(
+        a.rounds, a.particles, a.repeats, log=lambda s: print(s, flush=True), against=a.against
+    )
     md = to_markdown(rows, a.particles, a.repeats)
+    if versus is not None:
+        md += "\n\n" + versus
     print(md)
     if a.out is not None:
-        cmd = f"python {common.script(__file__)} --rounds {a.rounds} --out {a.out}"
+        cmd = f"python {common.script(__file__)} --rounds {a.rounds}"
+        cmd += f" --against {a.against}" if a.against else ""
+        cmd += f" --out {a.out}"
         common.write_result(a.out, "# jaxmocap vs PARSEC bodytrack, side by side\n\n" + md, cmd)
     return 0
 

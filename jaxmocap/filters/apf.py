@@ -162,5 +162,4 @@ def weigh_layer(filt, key, X, log_corr, observation, layer, beta_prev, surv_prev
         sol.beta * jnp.where(jnp.isfinite(ll), ll, 0.0) + jnp.where(jnp.isfinite(ll), log_corr, -jnp.inf)
     )
     stats = base.layer_stats(ll, log_w, sol.beta, sol.status)
-    X_rec = filt._recover(key, X, previous_estimate)
-    return jnp.where(ok, X, X_rec), log_w, stats, ~ok
+    return filt._recover(key, X, previous_estimate, ok), log_w, stats, ~ok

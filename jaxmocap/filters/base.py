@@ -125,11 +125,13 @@ class FilterBase:
     recovery: str = "reinit"
     recovery_widen: float = 3.0
 
-    def _recover(self, key: jax.Array, X: jnp.ndarray, previous_estimate: jnp.ndarray) -> jnp.ndarray:
-        """:func:`recover` with this filter's spread, limits and mode."""
+    def _recover(
+        self, key: jax.Array, X: jnp.ndarray, previous_estimate: jnp.ndarray, ok, mask=None
+    ) -> jnp.ndarray:
+        """:func:`recover` with this filter's spread, limits and mode: ``X`` where ``ok``, else the fresh set."""
         return recover(
             key, X, previous_estimate, self.diffusion_std, self.recovery_widen, self.lower, self.upper,
-            self.limit_mode, self.recovery,
+            self.limit_mode, self.recovery, ok=ok, mask=mask,
         )  # fmt: skip
 
     def _weigh_once(self, key, X, log_prior, observation, previous_estimate) -> tuple[State, Info]:
@@ -356,18 +358,32 @@ def recover(
     upper=None,
     limit_mode: str = "clip",
     mode: str = "reinit",
+    ok=None,
+    mask=None,
 ) -> jnp.ndarray:
     """Particles to use after a weighting where every log-weight was ``-inf``/NaN (their weights become uniform).
 
     ``"reinit"``: a fresh cloud ``previous_estimate + widen · std ⊙ ε`` inside the limits; ``"uniform"``: keep the
-    proposed particles ``X`` (uniform weights over the prior/proposal sample).
+    proposed particles ``X`` (uniform weights over the prior/proposal sample). ``mask`` (``(D,)`` bool): re-draw
+    only these coordinates, keep the others of ``X``.
+
+    ``ok`` (scalar bool): the weighting succeeded, so ``X`` is returned as it is; the fresh cloud is drawn only when
+    ``ok`` is False (a ``lax.cond``: its ``N × D`` normal draws cost as much as a layer's diffusion, and on a CPU
+    the branch not taken does not run; under ``vmap`` with a batched ``ok`` both run and one is selected).
     """
     if mode not in RECOVERY_MODES:
         raise ValueError(f"unknown recovery mode {mode!r}; choose one of {RECOVERY_MODES}")
     if mode == "uniform":
         return X
-    noise = jax.random.normal(key, X.shape, X.dtype)
-    return apply_limits(previous_estimate + widen * std * noise, lower, upper, limit_mode)
+
+    def fresh():
+        noise = jax.random.normal(key, X.shape, X.dtype)
+        out = apply_limits(previous_estimate + widen * std * noise, lower, upper, limit_mode)
+        return out if mask is None else jnp.where(mask, out, X)
+
+    if ok is None:
+        return fresh()
+    return jax.lax.cond(ok, lambda: X, fresh)
 
 
 class State(NamedTuple):
@@ -439,8 +455,7 @@ def finish(
     circular,
 ) -> tuple[jnp.ndarray, jnp.ndarray, jnp.ndarray, jnp.ndarray]:
     """Apply the recovery when ``ok`` is False; returns ``(particles, log_weights, estimate, best)``."""
-    X_rec = recover(key, X, previous_estimate, std, widen, lower, upper, limit_mode, recovery)
-    X = jnp.where(ok, X, X_rec)
+    X = recover(key, X, previous_estimate, std, widen, lower, upper, limit_mode, recovery, ok=ok)
     estimate = weighted_mean(X, log_w, circular)
     if recovery == "reinit":
         estimate = jnp.where(ok, estimate, previous_estimate)

@@ -136,8 +136,7 @@ class Partitioned(base.FilterBase):
             beta, status = sol.beta, sol.status
         log_w, ok = base.normalise(beta * jnp.where(jnp.isfinite(ll), ll, -jnp.inf))
         stats = base.layer_stats(ll, log_w, beta, status)
-        X_rec = jnp.where(mask, self._recover(k_rec, X, previous_estimate), X)
-        return jnp.where(ok, X, X_rec), log_w, stats, ~ok
+        return self._recover(k_rec, X, previous_estimate, ok, mask), log_w, stats, ~ok
 
     def _layer(self, carry, inputs, k, mask, propose, evaluate, accept):
         """One layer of partition ``k``: ``propose(k_sel, k_move, X, log_w, std, layer)``, ``evaluate(X, layer)``

@@ -410,6 +410,30 @@ def test_recovery_in_one_layer_and_uniform_mode():
     assert not np.array_equal(info.estimate[4], info.estimate[3])
 
 
+def test_recover_draws_only_when_needed():
+    """``recover(..., ok=...)``: the particles unchanged where the weighting succeeded, the fresh cloud
+    ``estimate + widen · std ⊙ ε`` (the same draws as without ``ok``) where it failed, only the ``mask``ed
+    coordinates re-drawn; the same under ``vmap`` with a batched ``ok``. The compiled program holds the draws in a
+    conditional, not in the straight-line code."""
+    k = jax.random.key(3)
+    X = jnp.arange(12.0).reshape(4, 3)
+    prev, std = jnp.asarray([10.0, 20.0, 30.0]), jnp.asarray([1.0, 2.0, 3.0])
+    fresh = prev + 2.0 * std * jax.random.normal(k, X.shape)
+    same = lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-6)  # float32 rounding of a fused program
+    same(base.recover(k, X, prev, std, 2.0), fresh)
+    np.testing.assert_array_equal(base.recover(k, X, prev, std, 2.0, ok=jnp.asarray(True)), X)
+    same(base.recover(k, X, prev, std, 2.0, ok=jnp.asarray(False)), fresh)
+    mask = jnp.asarray([True, False, True])
+    got = base.recover(k, X, prev, std, 2.0, ok=jnp.asarray(False), mask=mask)
+    same(got, jnp.where(mask, fresh, X))
+    ok = jnp.asarray([True, False])
+    got = jax.vmap(lambda o: base.recover(k, X, prev, std, 2.0, ok=o))(ok)
+    np.testing.assert_array_equal(got[0], X)
+    same(got[1], fresh)
+    hlo = jax.jit(lambda o: base.recover(k, X, prev, std, 2.0, ok=o)).lower(jnp.asarray(True)).as_text()
+    assert "case" in hlo or "conditional" in hlo
+
+
 def test_limits_clip_and_reflect():
     lo, hi = jnp.asarray([-1.0, 0.0]), jnp.asarray([1.0, jnp.inf])
     X = jnp.asarray([[1.3, -0.5], [-3.5, 2.0], [0.2, 7.0]])
