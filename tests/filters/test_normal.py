@@ -37,7 +37,9 @@ def test_split_vmapped_and_raw_keys():
     want = jax.vmap(lambda k: jax.random.normal(k, (300, 31)))(keys)
     np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
     raw = jax.random.PRNGKey(3)  # a legacy uint32[2] key
-    np.testing.assert_array_equal(np.asarray(normal(raw, (50, 3))), np.asarray(jax.random.normal(raw, (50, 3))))
+    np.testing.assert_array_equal(
+        np.asarray(normal(raw, (50, 3))), np.asarray(jax.random.normal(raw, (50, 3)))
+    )
 
 
 @pytest.mark.parametrize("dtype", [jnp.bfloat16, jnp.float16])
@@ -50,4 +52,6 @@ def test_other_dtypes_fall_back(dtype):
 
 def test_rbg_keys_fall_back():
     key = jax.random.key(4, impl="rbg")
-    np.testing.assert_array_equal(np.asarray(normal(key, (20, 3))), np.asarray(jax.random.normal(key, (20, 3))))
+    np.testing.assert_array_equal(
+        np.asarray(normal(key, (20, 3))), np.asarray(jax.random.normal(key, (20, 3)))
+    )
