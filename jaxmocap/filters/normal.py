@@ -19,6 +19,7 @@ elements or more) calls ``jax.random.normal`` itself.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import jax
@@ -50,8 +51,8 @@ def threefry2x32(k0, k1, x0, x1):
     return x0, x1
 
 
-def _threefry_words(key) -> tuple | None:
-    """The key's two uint32 words when ``jax.random`` would hash with them as above, else None."""
+def _threefry_words(key) -> jax.Array | None:
+    """The key's two uint32 words ``(2,)`` when ``jax.random`` would hash with them as above, else None."""
     if not jax.config.jax_threefry_partitionable:
         return None
     if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
@@ -62,18 +63,25 @@ def _threefry_words(key) -> tuple | None:
         data = key
     else:
         return None
-    return data[0], data[1]
+    return data
 
 
 def normal(key: jax.Array, shape: tuple[int, ...], dtype=jnp.float32) -> jnp.ndarray:
-    """``jax.random.normal(key, shape, dtype)``, the same values (module docstring)."""
+    """``jax.random.normal(key, shape, dtype)``, the same values (module docstring). Called outside ``jit`` it
+    runs as one compiled program (:func:`_normal_float32`), not operation by operation."""
     shape = tuple(int(s) for s in shape)
-    size = math.prod(shape)
     words = _threefry_words(key)
-    if words is None or jnp.dtype(dtype) != jnp.float32 or size >= 2**32:
+    if words is None or jnp.dtype(dtype) != jnp.float32 or math.prod(shape) >= 2**32:
         return jax.random.normal(key, shape, dtype)
+    return _normal_float32(words, shape)
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def _normal_float32(words: jax.Array, shape: tuple[int, ...]) -> jnp.ndarray:
+    """The float32 draws of :func:`normal` for the key words ``(2,)``."""
+    size = math.prod(shape)
     counter = jax.lax.iota(jnp.uint32, size)
-    a, b = threefry2x32(*words, jnp.zeros_like(counter), counter)
+    a, b = threefry2x32(words[0], words[1], jnp.zeros_like(counter), counter)
     one = np.array(1.0, np.float32).view(np.uint32)
     f = jax.lax.bitcast_convert_type(((a ^ b) >> np.uint32(9)) | one, jnp.float32) - np.float32(1.0)
     lo = np.nextafter(np.float32(-1.0), np.float32(0.0))
