@@ -55,3 +55,14 @@ def test_rbg_keys_fall_back():
     np.testing.assert_array_equal(
         np.asarray(normal(key, (20, 3))), np.asarray(jax.random.normal(key, (20, 3)))
     )
+
+
+def test_eager_calls_run_one_compiled_program_per_shape():
+    """Outside ``jit`` the written-out rounds are not dispatched operation by operation: one compiled program per
+    shape, reused for every key."""
+    from jaxmocap.filters import normal as module
+
+    before = module._normal_float32._cache_size()
+    for seed in range(3):
+        normal(jax.random.key(seed), (11, 13))
+    assert module._normal_float32._cache_size() == before + 1
