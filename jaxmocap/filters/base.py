@@ -29,7 +29,6 @@ import jax
 import jax.numpy as jnp
 
 from jaxmocap.filters import annealing, resampling
-from jaxmocap.filters.normal import normal
 
 __all__ = [
     "LIMIT_MODES",
@@ -277,7 +276,7 @@ def apply_limits(X: jnp.ndarray, lower, upper, mode: str = "clip") -> jnp.ndarra
 
 def diffuse(key: jax.Array, X: jnp.ndarray, std: jnp.ndarray, lower=None, upper=None, mode: str = "clip"):
     """Random-walk move ``X + std ⊙ ε``, ``ε ~ N(0, I)``, then the limits. ``std``: ``(D,)`` or ``(N, D)``."""
-    noise = normal(key, X.shape, X.dtype)
+    noise = jax.random.normal(key, X.shape, X.dtype)
     return apply_limits(X + std * noise, lower, upper, mode)
 
 
@@ -378,7 +377,7 @@ def recover(
         return X
 
     def fresh():
-        noise = normal(key, X.shape, X.dtype)
+        noise = jax.random.normal(key, X.shape, X.dtype)
         out = apply_limits(previous_estimate + widen * std * noise, lower, upper, limit_mode)
         return out if mask is None else jnp.where(mask, out, X)
 
@@ -419,7 +418,7 @@ def init_state(
     """A Gaussian cloud ``mean + std ⊙ ε`` of ``num_particles`` particles inside the limits, uniform weights."""
     mean = jnp.asarray(mean)
     std = jnp.broadcast_to(jnp.asarray(std, mean.dtype), mean.shape)
-    X = mean + std * normal(key, (num_particles, mean.shape[-1]), mean.dtype)
+    X = mean + std * jax.random.normal(key, (num_particles, mean.shape[-1]), mean.dtype)
     X = apply_limits(X, lower, upper, limit_mode)
     log_w = jnp.full((num_particles,), -jnp.log(num_particles), mean.dtype)
     return State(X, log_w, mean)

@@ -39,7 +39,6 @@ import jax.numpy as jnp
 
 from jaxmocap.filters import base
 from jaxmocap.filters.base import Info, State
-from jaxmocap.filters.normal import normal
 
 __all__ = [
     "ICondensation",
@@ -106,9 +105,9 @@ def importance_sample(
 
     # the schemes return ancestors in index order: shuffle them so that the first N_dyn slots are a draw from f
     selected = jax.random.permutation(k_perm, base.resample(scheme, k_sel, particles, log_weights, n)[0])
-    from_dyn = selected + dynamics_std * normal(k_dyn, (n, particles.shape[1]), dtype)
-    from_det = centre + detection_std * normal(k_det, (n, particles.shape[1]), dtype)
-    from_prior = prior_mean + prior_std * normal(k_prior, (n, particles.shape[1]), dtype)
+    from_dyn = selected + dynamics_std * jax.random.normal(k_dyn, (n, particles.shape[1]), dtype)
+    from_det = centre + detection_std * jax.random.normal(k_det, (n, particles.shape[1]), dtype)
+    from_prior = prior_mean + prior_std * jax.random.normal(k_prior, (n, particles.shape[1]), dtype)
     X = jnp.where(is_prior[:, None], from_prior, jnp.where(is_det[:, None], from_det, from_dyn))
     X = base.apply_limits(X, lower, upper, limit_mode)
 
