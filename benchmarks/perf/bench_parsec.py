@@ -257,7 +257,8 @@ def main(args):
         }
         rows = bodytrack.side_by_side(jobs, args.bodytrack_rounds, log=lambda s: None)
         print(
-            f"\nbodytrack serial C++ (ll_bench, median of {reps}) vs JAX (median of {reps} after an untimed call), side by side:\n"
+            f"\nbodytrack serial C++ (ll_bench, median of {reps}) vs JAX (median of {reps} after an untimed call), "
+            "side by side:\n"
         )
         print(bodytrack.table(rows))
 
