@@ -91,10 +91,10 @@ class Jaxmocap:
 
     def frames(self, config: tuple[int, int], seed: int = 0) -> float:
         """Seconds per frame, median over the frames: host maps of frame ``t`` + the compiled filter step."""
-        return self.trackers[config].run(seed).per_frame
+        return self.frames_at(THIS, config, seed)
 
     def frames_at(self, name: str, config: tuple[int, int], seed: int = 0) -> float:
-        """:meth:`frames` of this checkout (``name`` "this checkout") or of the ``against`` revision."""
+        """:meth:`frames` of this checkout (``name`` :data:`THIS`) or of the ``against`` revision."""
         trackers = self.trackers if name == THIS else self.against
         return trackers[config].run(seed).per_frame
 
