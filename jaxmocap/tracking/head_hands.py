@@ -42,6 +42,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import cv2
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -50,7 +51,15 @@ from jaxmocap.fit import ik
 from jaxmocap.geometry import camera
 from jaxmocap.tracking.init import joint_positions, root_translation_dofs
 
-__all__ = ["HeadHands", "HeadHandsDetector", "Sighting", "assign_hands", "choose_head", "head_hands_pose"]
+__all__ = [
+    "HeadHands",
+    "HeadHandsDetector",
+    "Sighting",
+    "assign_hands",
+    "choose_head",
+    "head_hands_pose",
+    "warm_head_hands_pose",
+]
 
 
 class HeadHands(NamedTuple):
@@ -325,36 +334,57 @@ def _mean_by_label(labels: np.ndarray, values: np.ndarray, n: int) -> np.ndarray
 
 def head_hands_pose(model, det: HeadHands, reference: np.ndarray | None = None) -> np.ndarray | None:
     """The configuration ``(D,)`` of :func:`jaxmocap.fit.ik.from_head_hands` for detection ``det``: started from
-    ``reference`` (the last good estimate) moved so that its head is on the detected head when given, else from the
-    rest pose turned along the hands; the prior pulls the angles towards the reference (or the rest pose). None
-    when the fit is not finite."""
+    ``reference`` (the last good estimate) moved so that its head is on the detected head when given — turned along
+    the hands when both are seen, else keeping the reference's heading —, else from the rest pose turned along the
+    hands; the prior pulls the angles towards the reference (or the rest pose). None when the fit is not finite.
+
+    One compiled program per model and form (with or without a reference, :func:`_fit`): a frame's fit is one
+    call, and :func:`warm_head_hands_pose` compiles both before a run's first frame."""
     dt = model.offset.dtype
-    init = prior = None
-    if reference is not None:
-        prior = jnp.asarray(reference, dt)
-        init = ik.head_hands_init(
-            model, jnp.asarray(det.head, dt), jnp.asarray(det.left, dt), jnp.asarray(det.right, dt), prior
-        )
-        if not np.all(det.weights[1:] > 0):  # a hand missing: keep the reference's heading
-            init = _shift_head(model, np.asarray(reference, np.float64), det.head)
-    fit = ik.from_head_hands(
-        model,
-        jnp.asarray(det.head, dt),
-        jnp.asarray(det.left, dt),
-        jnp.asarray(det.right, dt),
-        weights=jnp.asarray(det.weights, dt),
-        init=None if init is None else jnp.asarray(init, dt),
-        prior_mean=prior,
-    )
-    x = np.asarray(fit.state, np.float64)
+    targets = jnp.asarray(np.stack([det.head, det.left, det.right]), dt)
+    weights = jnp.asarray(det.weights, dt)
+    if reference is None:
+        x = _fit(model, targets, weights, None, jnp.asarray(True))
+    else:
+        both = bool(np.all(np.asarray(det.weights)[1:] > 0))
+        x = _fit(model, targets, weights, jnp.asarray(reference, dt), jnp.asarray(both))
+    x = np.asarray(x, np.float64)
     return x if np.all(np.isfinite(x)) else None
 
 
-def _shift_head(model, x: np.ndarray, head: np.ndarray) -> np.ndarray:
-    """``x`` with its root translated so that its head joint is at ``head``."""
+@jax.jit
+def _fit(model, targets: jnp.ndarray, weights: jnp.ndarray, reference, both: jnp.ndarray) -> jnp.ndarray:
+    """The state ``(D,)`` of :func:`head_hands_pose` for ``targets (3, 3)`` (head, left, right), ``weights (3,)``,
+    ``reference (D,)`` or None, ``both``: both hands seen (a hand missing: the reference's heading is kept, only
+    shifted to the head by :func:`_shift_head`)."""
+    head, left, right = targets
+    init = None
+    if reference is not None:
+        turned = ik.head_hands_init(model, head, left, right, reference)
+        init = jnp.where(both, turned, _shift_head(model, reference, head))
+    fit = ik.from_head_hands(model, head, left, right, weights=weights, init=init, prior_mean=reference)
+    return fit.state
+
+
+def _shift_head(model, x: jnp.ndarray, head: jnp.ndarray) -> jnp.ndarray:
+    """``x (D,)`` with its root translated so that its head joint is at ``head (3,)`` (traceable)."""
+    J = joint_positions(model, x)
+    trans = jnp.asarray(root_translation_dofs(model))
+    A = model.dof_axis[trans].T
+    return x.at[trans].add(jnp.linalg.pinv(A) @ (head - J[model.joint_names.index("head")]))
+
+
+def warm_head_hands_pose(model, rig: camera.Rig) -> None:
+    """Compile :func:`head_hands_pose`'s programs (with and without a reference) and those of :func:`assign_hands`
+    with a reference, on the rest pose standing in front of the first camera
+    (:func:`jaxmocap.tracking.init.default_standing`): a run whose first sighting of a person comes after its first
+    frame then compiles nothing at that frame."""
+    from jaxmocap.tracking.init import default_standing
+
+    x = default_standing(model, rig)
     J = np.asarray(joint_positions(model, jnp.asarray(x, model.offset.dtype)), np.float64)
-    trans = root_translation_dofs(model)
-    A = np.asarray(model.dof_axis, np.float64)[trans].T
-    out = x.copy()
-    out[trans] += np.linalg.pinv(A) @ (np.asarray(head) - J[model.joint_names.index("head")])
-    return out
+    head, left, right = (J[model.joint_names.index(n)] for n in ("head", "left_wrist", "right_wrist"))
+    assign_hands(np.stack([left, right]), rig, model, x)
+    det = HeadHands(head, left, right, np.ones(3), "highest")
+    head_hands_pose(model, det, None)
+    head_hands_pose(model, det, x)

@@ -439,6 +439,9 @@ class TrackingLoop:
                 raise
             finally:
                 self._join_ahead()  # a run that failed before its step compiled
+                getattr(
+                    self.setup, "finish_reads", lambda: None
+                )()  # frames read ahead: the source may close next
 
     def _run(self, p: dict) -> dict:
         setup, o = self.setup, self.o
@@ -554,8 +557,7 @@ class TrackingLoop:
                 lost, reinit_source = False, None
                 if setup.track_loss:
                     bad_quality = loss.bad_quality(q)
-                    # the setup's detector sees a person again after frames without one: re-initialise on them,
-                    # and learn the quality reference again
+                    # the setup's detector sees a person again after frames without one: re-initialise, relearn q_ref
                     appeared = loss.unseen and not unseen
                     loss.unseen = unseen
                     if unseen:

@@ -33,6 +33,7 @@ from jaxmocap.choices import ANNEALINGS, DETECTORS, PROPOSALS, REFINEMENTS, VELO
 from jaxmocap.errors import MocapInputError
 from jaxmocap.filters.annealing import Schedule
 from jaxmocap.filters.factory import GRADIENT_FILTERS, make_filter, partition_counts
+from jaxmocap.io.read_ahead import ReadAhead
 from jaxmocap.io.sources import BadFrame
 from jaxmocap.likelihood import compose as lk
 from jaxmocap.likelihood.cues import DIFFERENTIABLE
@@ -60,6 +61,10 @@ __all__ = ["ObservationLoglik", "TrackSetup", "frame_range", "observation_loglik
 
 #: Cues that read the foreground.
 FOREGROUND_CUES = ("foreground", "coverage", "silhouette_divergence")
+
+
+#: Frames read ahead of the one being tracked (:meth:`TrackSetup.observe`).
+READ_AHEAD = 2
 
 
 def frame_range(spec: str | None, num_frames: int) -> list[int]:
@@ -234,9 +239,12 @@ class TrackSetup:
         # was seen, and the pose
         self._hh_fd = self._hh_ref = self._hh_pose = None
         self._hh_seen = False
-        # the detector's image work (:meth:`_sighting`): of the frame read last, started in a thread by
-        # :meth:`observe` (frame, future), and of the frame decided last (frame, sighting)
+        # the detector's image work (:meth:`_sighting`): of the frame observed last, started in a thread when it
+        # was read (frame, future), and of the frame decided last (frame, sighting)
         self._hh_look = self._hh_sight = self._hh_worker = None
+        # the frames read ahead (:meth:`observe`): the READ_AHEAD frames of the run after each of its frames
+        self._reader = ReadAhead(self._read)
+        self._after = {t: self.frames[k + 1 : k + 1 + READ_AHEAD] for k, t in enumerate(self.frames)}
         if o.proposal == "head-hands" or o.init == "head-hands":
             from jaxmocap.tracking.head_hands import HeadHandsDetector
 
@@ -535,23 +543,44 @@ class TrackSetup:
 
     def observe(self, t: int):
         """``(tobs, masks, frame data, None)`` of frame ``t``, or ``(None, None, None, why)`` for an unreadable
-        frame (skipped with a warning; fatal with ``on_bad_frame="stop"``)."""
+        frame (skipped with a warning; fatal with ``on_bad_frame="stop"``).
+
+        The frame comes from :meth:`_read`, read ahead in a thread (:class:`jaxmocap.io.read_ahead.ReadAhead`)
+        when an earlier call asked for it; this call has the run's next :data:`READ_AHEAD` frames read there, so
+        that their decoding and the head-and-hands detector's image work overlap this frame's features and the
+        filter's step (the image work of a frame gets a frame's time and more before the frame's proposal waits
+        for it)."""
         try:
-            fd = self.source.read(t, masks=self.features.needs_masks, depth=self.features.needs_depth)
+            fd, seen = self._reader(t, ahead=self._after.get(t, ()))
         except BadFrame as e:
             if self.o.on_bad_frame == "stop":
                 raise MocapInputError(None, f"{e} (--on-bad-frame stop)") from None
             warn(f"skipping frame {t}: {e}")
             return None, None, None, str(e)
-        # the head-and-hands detector's image work in its thread, beside the features (OpenCV frees the GIL)
-        if self.o.proposal == "head-hands":
-            self._hh_look = (fd, self._head_hands_worker().submit(self.head_hands.look, fd.images))
+        if seen is not None:
+            self._hh_look = (fd, seen)
         tobs, masks = self.features(fd, self.model.num_dofs)
         return tobs, masks, fd, None
 
+    def _read(self, t: int):
+        """``(frame data, sighting)`` of frame ``t``: the source's images (with the masks and depth maps the
+        features need) and, with the head-and-hands proposal, the future of the detector's image work on them
+        (:meth:`~jaxmocap.tracking.head_hands.HeadHandsDetector.look`: OpenCV, no pose needed) in a thread of its
+        own, else None."""
+        fd = self.source.read(t, masks=self.features.needs_masks, depth=self.features.needs_depth)
+        seen = None
+        if self.o.proposal == "head-hands":
+            seen = self._head_hands_worker().submit(self.head_hands.look, fd.images)
+        return fd, seen
+
+    def finish_reads(self) -> None:
+        """Wait for the frame being read ahead (:meth:`observe`): before anything else reads or closes the
+        source."""
+        self._reader.wait()
+
     def _sighting(self, fd):
         """The head-and-hands detector's image work on frame data ``fd`` (:meth:`~jaxmocap.tracking.head_hands.
-        HeadHandsDetector.look`): from the thread :meth:`observe` started it in, or done now."""
+        HeadHandsDetector.look`): from the thread it was started in when the frame was read, or done now."""
         for held in (self._hh_sight, self._hh_look):
             if held is not None and held[0] is fd:
                 seen = held[1].result() if isinstance(held[1], Future) else held[1]
@@ -562,7 +591,7 @@ class TrackSetup:
         return seen
 
     def _head_hands_worker(self):
-        """The thread that runs the head-and-hands detector's image work (:meth:`observe`), started once."""
+        """The thread that runs the head-and-hands detector's image work (:meth:`_read`), started once."""
         if self._hh_worker is None:
             self._hh_worker = ThreadPoolExecutor(1, thread_name_prefix="jaxmocap-head-hands")
         return self._hh_worker
@@ -584,8 +613,13 @@ class TrackSetup:
 
     def warm_reinit(self, how: str | None) -> None:
         """Compile ahead the re-initialisation from detections (:func:`jaxmocap.tracking.init.warm_keypoint_pose`)
-        when the input has detections but the first pose (``how``; None: a resumed run) did not come from them: in
+        when the input has detections but the first pose (``how``; None: a resumed run) did not come from them, and
+        the head-and-hands fit (:func:`jaxmocap.tracking.head_hands.warm_head_hands_pose`) when the run uses it: in
         a thread of the loop's, before the first frame is tracked (:mod:`jaxmocap.tracking.loop`)."""
+        if self.head_hands is not None:
+            from jaxmocap.tracking.head_hands import warm_head_hands_pose
+
+            warm_head_hands_pose(self.model, self.source.rig)
         if how != "ik-keypoints" and self.source.has_keypoints and self.o.proposal != "head-hands":
             init_mod.warm_keypoint_pose(
                 self.model, self.source.rig, bool(getattr(self.source, "has_depth", False))

@@ -131,7 +131,11 @@ def test_a_signal_during_a_run_is_one_line_and_flushes_the_outputs(
     capsys, sequence, tmp_path, monkeypatch, sig
 ):
     """Ctrl-C (exit status 130) and SIGTERM (143) while frames are tracked: one line naming what was written,
-    and every output — poses, BVH, diagnostics with the summary — holds the frames tracked."""
+    and every output — poses, BVH, diagnostics with the summary — holds the frames tracked. Frames are read
+    ``READ_AHEAD`` ahead (:meth:`jaxmocap.tracking.setup.TrackSetup.observe`): frame 7 is read, and the signal
+    sent, while frame ``7 − READ_AHEAD − 1`` is tracked."""
+    from jaxmocap.tracking.setup import READ_AHEAD
+
     opened = cli._open_source
     monkeypatch.setattr(cli, "_open_source", lambda *a: _SignalsAt(opened(*a), 7, sig))
     out = tmp_path / "run"
@@ -140,7 +144,10 @@ def test_a_signal_during_a_run_is_one_line_and_flushes_the_outputs(
     assert code == 128 + sig and err.count("\n") == 1 and err.startswith(f"jaxmocap: {why}; "), err
     n, summary = _outputs_agree(out, "interrupted")
     assert (
-        5 <= n <= 7 and summary["interrupted"] and f"{n} of 20 frames" in err and "--resume continues" in err
+        7 - READ_AHEAD - 2 <= n <= 7
+        and summary["interrupted"]
+        and f"{n} of 20 frames" in err
+        and "--resume continues" in err
     )
 
 

@@ -5,6 +5,7 @@ tracking run on a rendered stereo sequence that starts with nobody in view (no g
 
 ``sequence``: 8 frames at 15 fps of the bundled CMU walk, stereo 640x480 (tracked at 160x120), plain backdrop, long sleeves."""
 
+import functools
 import json
 import math
 import pathlib
@@ -215,6 +216,53 @@ def test_head_hands_ik_reaches_the_targets_of_a_known_pose(model):
     y = hh.head_hands_pose(model, det)
     Jy = np.asarray(joint_positions(model, jnp.asarray(y, jnp.float32)), np.float64)
     assert np.max(np.linalg.norm(Jy[idx] - J[idx], axis=1)) < 0.02
+
+
+def test_head_hands_pose_is_the_ik_of_the_paper_and_compiles_nothing_once_warmed(model, sequence):
+    """:func:`head_hands.head_hands_pose` against :func:`jaxmocap.fit.ik.from_head_hands` called directly: from
+    the rest pose without a reference; from the reference turned along the hands (:func:`ik.head_hands_init`) with
+    both hands; from the reference shifted to the head with one hand missing (its heading kept). After
+    :func:`head_hands.warm_head_hands_pose` none of the three compiles a program (a person first seen after the
+    first frame of a run costs no compilation)."""
+    from jaxmocap.fit import ik
+    from jaxmocap.tracking.compile_watch import CompileWatch
+    from jaxmocap.tracking.init import default_standing
+
+    rig = SequenceSource(sequence).rig
+    hh.warm_head_hands_pose(model, rig)
+    ref = default_standing(model, rig)
+    J = np.asarray(joint_positions(model, jnp.asarray(ref, jnp.float32)), np.float64)
+    head, left, right = (
+        J[model.joint_names.index(n)] + [0.05, -0.1, 0.02] for n in ("head", "left_wrist", "right_wrist")
+    )
+    left = left + [0.0, -0.2, 0.3]
+    f32 = functools.partial(jnp.asarray, dtype=jnp.float32)
+    watch = CompileWatch()
+    both = hh.HeadHands(head, left, right, np.ones(3), "face")
+    one = hh.HeadHands(head, left, head, np.array([1.0, 1.0, 0.0]), "face")
+    got = [
+        hh.head_hands_pose(model, both),
+        hh.head_hands_pose(model, both, ref),
+        hh.head_hands_pose(model, one, ref),
+    ]
+    compiled = watch.take()
+    watch.close()
+    assert compiled == 0
+    direct = ik.from_head_hands(model, f32(head), f32(left), f32(right)).state
+    np.testing.assert_allclose(got[0], direct, atol=1e-5)
+    init = ik.head_hands_init(model, f32(head), f32(left), f32(right), f32(ref))
+    direct = ik.from_head_hands(model, f32(head), f32(left), f32(right), init=init, prior_mean=f32(ref)).state
+    np.testing.assert_allclose(got[1], direct, atol=1e-5)
+    shifted = ref.copy()
+    trans = [i for i, n in enumerate(model.dof_names) if n.startswith("root_t")]
+    assert len(trans) == 3
+    shifted[trans] += head - J[model.joint_names.index("head")]  # the root's translation axes are x, y, z
+    w = f32(one.weights)
+    direct = ik.from_head_hands(
+        model, f32(head), f32(left), f32(head), weights=w, init=f32(shifted), prior_mean=f32(ref)
+    ).state
+    np.testing.assert_allclose(got[2], direct, atol=1e-4)
+    assert np.abs(got[1] - got[2]).max() > 1e-2  # the two starts lead to different poses
 
 
 @pytest.mark.parametrize("stereo_gate, head_px", [(False, 4.0), (True, 6.0)])
