@@ -278,21 +278,21 @@ SCRIPTS: dict[str, Script] = {
         slow=True,
     ),
     "track_rate": Script(
-        "Frames/s of the defaults (64 coverage samples, masks kept on the host) against 128 samples and the "
-        "revision before",
+        "Frames/s of the defaults (frames read ahead in a thread) against the revision before",
         "perf/track_rate.py",
-        "--frames 60 --rounds 5 --busy --variant 'samples 128:samples=128' --against d2b18a7 "
-        "--title '64 coverage samples and the masks kept on the host' --out benchmarks/results/track_rate.md",
+        "--frames 60 --rounds 5 --busy --against 093b6a4 "
+        "--title 'frames read ahead in a thread' --out benchmarks/results/track_rate.md",
         writes=("track_rate.md",),
         slow=True,
     ),
     "track_rate_iros2007": Script(
-        "Frames/s of the IROS 2007 preset at 640x480 in the room, against the revision before the head-and-hands "
-        "thread",
+        "Frames/s of the IROS 2007 preset at 640x480 in the room, against the revision before frames were read "
+        "ahead",
         "perf/track_rate.py",
         "--preset iros2007 --rigs stereo --size 640x480 --fps 15 --background room --clutter medium "
-        "--no-detections --frames 20 --rounds 5 --busy --against aff61e3 "
-        "--title 'the IROS 2007 preset, head and hands looked for beside the features' "
+        "--no-detections --frames 40 --rounds 5 --busy --variant 'features 640x480:downsample=1' "
+        "--against 093b6a4 --against-options downsample=4 "
+        "--title 'the IROS 2007 preset, frames read ahead' "
         "--out benchmarks/results/track_rate_iros2007.md",
         writes=("track_rate_iros2007.md",),
         slow=True,
@@ -334,9 +334,9 @@ SCRIPTS: dict[str, Script] = {
         slow=True,
     ),
     "iros2007_speed": Script(
-        "IROS 2007 speed: --preset iros2007 frames/s at 640x480 and 160x120 features, and its stages' times",
+        "IROS 2007 speed: --preset iros2007 frames/s at 640x480 and 160x120 (default) features, and its stages' times",
         "experiments/iros2007.py",
-        "--speed --frames 20",
+        "--speed --frames 40",
         writes=("iros2007_speed.md",),
         slow=True,
     ),

@@ -9,7 +9,8 @@ maps; ``ring4``: four cameras around), read as a recording (:class:`jaxmocap.io.
 * ``LABEL`` (``--variant "LABEL:FIELD=VALUE[;FIELD=VALUE…]"``, repeatable) — the defaults with those fields of
   :class:`~jaxmocap.tracking.options.TrackOptions` set otherwise, e.g. ``"no depth:refine_depth=0"``;
 * ``REV`` (``--against REV``) — the defaults of the package at git revision ``REV``
-  (:func:`common.package_at`), e.g. the revision before a change.
+  (:func:`common.package_at`), e.g. the revision before a change; ``--against-options "FIELD=VALUE[;…]"`` sets
+  fields of its options otherwise (a default that the change moved, to compare like with like).
 
 ``--preset NAME`` takes that preset's options instead of the defaults in every configuration (``--variant`` fields
 over them); ``--fps``, ``--background``, ``--clutter`` and ``--no-detections`` choose the rendered scene, e.g. the
@@ -60,9 +61,10 @@ def parse_variant(text: str) -> tuple[str, dict]:
         raise SystemExit(f"--variant {text!r}: {e}") from None
 
 
-def configurations(against: str | None, variants=(), preset: str | None = None):
+def configurations(against: str | None, variants=(), preset: str | None = None, against_options=None):
     """``{name: run(seq, out) -> frames/s}`` of the compared trackers (``variants``: ``(label, options)``; ``preset``:
-    the options of that preset instead of the defaults, in every configuration)."""
+    the options of that preset instead of the defaults, in every configuration; ``against_options``: fields set
+    otherwise for revision ``against``)."""
 
     def tracker(sources, options_mod, tracker_mod, **options):
         def run(seq, out):
@@ -91,7 +93,10 @@ def configurations(against: str | None, variants=(), preset: str | None = None):
         label = subprocess.run(
             ["git", "-C", str(common.ROOT), "rev-parse", "--short", against], capture_output=True, text=True
         ).stdout.strip()
-        out[label or against] = tracker(*theirs)
+        label = label or against
+        if against_options:
+            label += " (" + ", ".join(f"{k}={v}" for k, v in against_options.items()) + ")"
+        out[label] = tracker(*theirs, **(against_options or {}))
     return out
 
 
@@ -127,12 +132,18 @@ def main(argv=None) -> int:
         help="also the defaults with these TrackOptions fields set otherwise (repeatable)",
     )
     ap.add_argument("--against", metavar="REV", help="also the defaults of the package at git revision REV")
+    ap.add_argument(
+        "--against-options",
+        metavar="FIELD=VALUE[;FIELD=VALUE…]",
+        help="TrackOptions fields set otherwise for the revision of --against",
+    )
     ap.add_argument("--title", default="frames/s side by side", help="the result's heading")
     ap.add_argument("--out", default=None, help="write the table here (default: print only)")
     a = ap.parse_args(argv)
     compilation_cache.enable()
     variants = [parse_variant(v) for v in a.variant]
-    configs = configurations(a.against, variants, a.preset)
+    against_options = parse_variant(f"x:{a.against_options}")[1] if a.against_options else None
+    configs = configurations(a.against, variants, a.preset, against_options)
     names = list(configs)
     lines = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -193,7 +204,9 @@ def main(argv=None) -> int:
                 for label, options in variants
             )
             + (
-                f", and the {'preset' if a.preset else 'defaults'} of revision `{names[-1]}` (`--against {a.against}`)"
+                f", and the {'preset' if a.preset else 'defaults'} of revision `{names[-1]}` (`--against {a.against}`"
+                + (f" `--against-options {a.against_options}`" if a.against_options else "")
+                + ")"
                 if a.against
                 else ""
             )
