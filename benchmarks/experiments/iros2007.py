@@ -21,7 +21,8 @@ detections only there. Error of a run: mean over frames and the nine upper-body 
 joints (:func:`jaxmocap.eval.metrics.evaluate`); reported as mean ± std over the runs (seeds 0 … R−1) per filter and
 sequence, and pooled. Re-initialisation: on the first sequence, frames ``[gap, gap + 5)`` show the empty scene
 (the views' background plates); frames to recover = frames after the person is back until the error comes within
-1.5× the run's median error before the gap (or ≤ 150 mm).
+1.5× the run's median error before the gap (or ≤ 150 mm). The claim that the IAPF re-initialises where the APF does
+not holds when the IAPF recovers in more runs, or in as many and in fewer frames (:func:`recovers_better`).
 
 ``--ablation`` (writes ``benchmarks/results/iros2007_ablation.md``): the same three motions rendered in the 3D
 room (``background="room"``) with clutter none / medium / high on its walls (:func:`jaxmocap.synth.stage.
@@ -209,6 +210,14 @@ def _ms(v) -> str:
     return f"{v.mean():.0f} ± {v.std():.0f}"
 
 
+def recovers_better(a: list[int], b: list[int]) -> bool:
+    """Whether the runs that recovered in ``a`` (frames to recover, one per run that did) beat those of ``b``: more
+    of them, or as many and fewer frames on average (a filter that recovers fast in fewer runs does not)."""
+    if len(a) != len(b):
+        return len(a) > len(b)
+    return bool(a) and float(np.mean(a)) < float(np.mean(b))
+
+
 def report(res, fps, recover, runs, frames, gap, length, seqs, wall, quick) -> str:
     names = [n for n, _ in seqs]
     lines = [
@@ -260,7 +269,7 @@ def report(res, fps, recover, runs, frames, gap, length, seqs, wall, quick) -> s
         f"- IAPF re-initialises after a transient loss where the APF does not (the person leaves the view for "
         f"{length} frames at frame {gap} of {names[0]}): frames to recover after the person is back, IAPF "
         f"{rec_text('IAPF')}, APF {rec_text('APF')} — "
-        + verdict(bool(rec["IAPF"]) and (not rec["APF"] or np.mean(rec["IAPF"]) < np.mean(rec["APF"])))
+        + verdict(recovers_better(rec["IAPF"], rec["APF"]))
         + " (here the APF re-initialises too: the tracker's track-loss rule re-initialises every filter from the "
         "head and hands when a person appears).",
         f"- Speed: {np.median(fps['IAPF']):.1f} frames/s end to end for the IAPF at 160x120 features (640x480 "

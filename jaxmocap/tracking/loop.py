@@ -103,8 +103,7 @@ class LossTracker:
 
     def __init__(self, options, last_good=None):
         self.o = options
-        self.q_ref, self.q_hist, self.lost_run = float("nan"), [], 0
-        self.last_good = last_good
+        self.q_ref, self.q_hist, self.lost_run, self.last_good = float("nan"), [], 0, last_good
         self.hist: list[tuple[int, np.ndarray]] = []
         #: the setup's detector saw nobody in the last frame (``setup.person_absent``)
         self.unseen = False
@@ -113,9 +112,8 @@ class LossTracker:
     def from_checkpoint(cls, options, ck) -> LossTracker:
         s = cls(options, np.asarray(ck["last_good"]))
         s.hist = [(int(f), np.asarray(x)) for f, x in zip(ck["hist_frames"], ck["hist_states"], strict=True)]
-        s.q_ref = float(ck["q_ref"])
+        s.q_ref, s.lost_run = float(ck["q_ref"]), int(ck["lost_run"])
         s.q_hist = [float(v) for v in np.asarray(ck["q_hist"]).reshape(-1)]
-        s.lost_run = int(ck["lost_run"])
         return s
 
     def snapshot(self) -> LossTracker:
@@ -439,9 +437,9 @@ class TrackingLoop:
                 raise
             finally:
                 self._join_ahead()  # a run that failed before its step compiled
-                getattr(
-                    self.setup, "finish_reads", lambda: None
-                )()  # frames read ahead: the source may close next
+                finish = getattr(self.setup, "finish_reads", None)
+                if finish is not None:  # the frames read ahead: the caller may close the source next
+                    finish()
 
     def _run(self, p: dict) -> dict:
         setup, o = self.setup, self.o

@@ -574,7 +574,7 @@ class TrackSetup:
         return fd, seen
 
     def finish_reads(self) -> None:
-        """Wait for the frame being read ahead (:meth:`observe`): before anything else reads or closes the
+        """Wait for the frames being read ahead (:meth:`observe`): before anything else reads or closes the
         source."""
         self._reader.wait()
 
