@@ -88,10 +88,10 @@ def loop_fusion_options() -> dict[str, bool]:
     rounds, 2026-11-29) and the whole PARSEC tracker at 4000 × 5 1.7× faster (``vs_bodytrack.py``). The same
     switch made the default tracker's step (other cues, other loops) slower on that CPU (stereo 11.5–13.3 against
     14.2 frames/s, four cameras 6.4–7.6 against 9.6, ``track_rate.py`` in separate processes), so it is a choice
-    per program, not per process. Elsewhere the
-    default is kept: on an AMD EPYC with AVX-512 (family 25, model 17) the loop emitter ran the PARSEC likelihood
-    at 0.37× the default (the same command, seven interleaved rounds, 2026-11-29 21:56 UTC: 6.97 against 2.57 µs
-    per particle), as the fast runs of 2026-11-22/25 had found for an earlier version (0.24×)."""
+    per program, not per process. Elsewhere the default is kept: on an AMD EPYC with AVX-512 (family 25, model 17)
+    the loop emitter ran the PARSEC likelihood at 0.37× the default (the same command, seven interleaved rounds,
+    2026-11-29 21:56 UTC: 6.97 against 2.57 µs per particle), as the fast runs of 2026-11-22/25 had found for an
+    earlier version (0.24×)."""
     import jax
 
     if jax.default_backend() != "cpu" or "xla_cpu_use_fusion_emitters" in os.environ.get("XLA_FLAGS", ""):

@@ -51,14 +51,20 @@ from jaxmocap.synth import generate as synth
 
 
 def parse_variant(text: str) -> tuple[str, dict]:
-    """``"LABEL:FIELD=VALUE[;FIELD=VALUE…]"`` → ``(LABEL, {field: value})`` (:func:`common.track_options`)."""
+    """``"LABEL:FIELD=VALUE[;FIELD=VALUE…]"`` → ``(LABEL, {field: value})`` (:func:`parse_fields`)."""
     label, sep, fields = text.partition(":")
     if not sep or not label.strip() or not fields.strip():
         raise SystemExit(f"--variant {text!r}: expected LABEL:FIELD=VALUE[;FIELD=VALUE…]")
+    return label.strip(), parse_fields(fields, f"--variant {text!r}")
+
+
+def parse_fields(fields: str, what: str) -> dict:
+    """``"FIELD=VALUE[;FIELD=VALUE…]"`` → ``{field: value}`` (:func:`common.track_options`); ``what`` names the
+    option in the error."""
     try:
-        return label.strip(), common.track_options(f.strip() for f in fields.split(";"))
+        return common.track_options(f.strip() for f in fields.split(";"))
     except ValueError as e:
-        raise SystemExit(f"--variant {text!r}: {e}") from None
+        raise SystemExit(f"{what}: {e}") from None
 
 
 def configurations(against: str | None, variants=(), preset: str | None = None, against_options=None):
@@ -142,7 +148,9 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     compilation_cache.enable()
     variants = [parse_variant(v) for v in a.variant]
-    against_options = parse_variant(f"x:{a.against_options}")[1] if a.against_options else None
+    against_options = None
+    if a.against_options:
+        against_options = parse_fields(a.against_options, f"--against-options {a.against_options!r}")
     configs = configurations(a.against, variants, a.preset, against_options)
     names = list(configs)
     lines = []

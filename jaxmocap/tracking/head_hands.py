@@ -375,8 +375,8 @@ def _shift_head(model, x: jnp.ndarray, head: jnp.ndarray) -> jnp.ndarray:
 
 
 def warm_head_hands_pose(model, rig: camera.Rig) -> None:
-    """Compile :func:`head_hands_pose`'s programs (with and without a reference) and those of :func:`assign_hands`
-    with a reference, on the rest pose standing in front of the first camera
+    """Compile :func:`head_hands_pose`'s programs (with and without a reference) and the joints of a reference pose
+    that :func:`assign_hands` computes, on the rest pose standing in front of the first camera
     (:func:`jaxmocap.tracking.init.default_standing`): a run whose first sighting of a person comes after its first
     frame then compiles nothing at that frame."""
     from jaxmocap.tracking.init import default_standing
@@ -384,7 +384,6 @@ def warm_head_hands_pose(model, rig: camera.Rig) -> None:
     x = default_standing(model, rig)
     J = np.asarray(joint_positions(model, jnp.asarray(x, model.offset.dtype)), np.float64)
     head, left, right = (J[model.joint_names.index(n)] for n in ("head", "left_wrist", "right_wrist"))
-    assign_hands(np.stack([left, right]), rig, model, x)
     det = HeadHands(head, left, right, np.ones(3), "highest")
     head_hands_pose(model, det, None)
     head_hands_pose(model, det, x)

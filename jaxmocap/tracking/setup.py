@@ -242,9 +242,9 @@ class TrackSetup:
         # the detector's image work (:meth:`_sighting`): of the frame observed last, started in a thread when it
         # was read (frame, future), and of the frame decided last (frame, sighting)
         self._hh_look = self._hh_sight = self._hh_worker = None
-        # the frames read ahead (:meth:`observe`): the READ_AHEAD frames of the run after each of its frames
+        # the frames read ahead (:meth:`observe`), and each frame's place in the run (the frames after it)
         self._reader = ReadAhead(self._read)
-        self._after = {t: self.frames[k + 1 : k + 1 + READ_AHEAD] for k, t in enumerate(self.frames)}
+        self._place = {t: k for k, t in enumerate(self.frames)}
         if o.proposal == "head-hands" or o.init == "head-hands":
             from jaxmocap.tracking.head_hands import HeadHandsDetector
 
@@ -551,7 +551,9 @@ class TrackSetup:
         filter's step (the image work of a frame gets a frame's time and more before the frame's proposal waits
         for it)."""
         try:
-            fd, seen = self._reader(t, ahead=self._after.get(t, ()))
+            k = self._place.get(t)
+            ahead = () if k is None else self.frames[k + 1 : k + 1 + READ_AHEAD]
+            fd, seen = self._reader(t, ahead=ahead)
         except BadFrame as e:
             if self.o.on_bad_frame == "stop":
                 raise MocapInputError(None, f"{e} (--on-bad-frame stop)") from None
