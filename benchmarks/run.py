@@ -286,13 +286,13 @@ SCRIPTS: dict[str, Script] = {
         slow=True,
     ),
     "track_rate_iros2007": Script(
-        "Frames/s of the IROS 2007 preset at 640x480 in the room, against the revision before frames were read "
-        "ahead",
+        "Frames/s of the IROS 2007 preset at 640x480 in the room, against the revision before the face search "
+        "was bounded by each blob's depth",
         "perf/track_rate.py",
         "--preset iros2007 --rigs stereo --size 640x480 --fps 15 --background room --clutter medium "
         "--no-detections --frames 40 --rounds 5 --busy --variant 'features 640x480:downsample=1' "
-        "--against 093b6a4 --against-options downsample=4 "
-        "--title 'the IROS 2007 preset, frames read ahead' "
+        "--against 2ec851d "
+        "--title 'the IROS 2007 preset, the face search bounded by each blob depth' "
         "--out benchmarks/results/track_rate_iros2007.md",
         writes=("track_rate_iros2007.md",),
         slow=True,

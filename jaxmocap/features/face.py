@@ -57,12 +57,24 @@ class FaceDetector:
         self.min_size = tuple(min_size)
         self.equalize = equalize
 
-    def detect(self, image: np.ndarray) -> np.ndarray:
+    @property
+    def window(self) -> tuple[int, int]:
+        """The cascade's own window ``(w, h)``, pixels (24 × 24 for the default cascade): no face smaller than
+        this is found, whatever ``min_size``."""
+        return tuple(int(v) for v in self.classifier.getOriginalWindowSize())
+
+    def detect(self, image: np.ndarray, min_size=None, max_size=None) -> np.ndarray:
+        """Face boxes of ``image``; ``min_size``/``max_size`` ``(w, h)`` bound the boxes searched for (default:
+        the detector's ``min_size``, no upper bound): the cascade scans only the scales between them."""
         grey = luminance(image)
         if self.equalize:
             grey = cv2.equalizeHist(grey)
         boxes = self.classifier.detectMultiScale(
-            grey, scaleFactor=self.scale_factor, minNeighbors=self.min_neighbors, minSize=self.min_size
+            grey,
+            scaleFactor=self.scale_factor,
+            minNeighbors=self.min_neighbors,
+            minSize=self.min_size if min_size is None else tuple(int(v) for v in min_size),
+            maxSize=(0, 0) if max_size is None else tuple(int(v) for v in max_size),
         )
         boxes = np.asarray(boxes, np.int64).reshape(-1, 4)
         order = np.argsort(-(boxes[:, 2] * boxes[:, 3]), kind="stable")

@@ -21,7 +21,10 @@ Per frame, on the full-size images of a calibrated pair (views ``(0, 1)``):
    walls);
 3. the head (:func:`choose_head`): the blob whose first-view centroid lies in a face found by the Haar detector
    (:class:`jaxmocap.features.face.FaceDetector`; the face box nearest the blob when several), else — no face
-   found, or none over a blob — the highest candidate whose height is at least ``min_head_height``;
+   found, or none over a blob — the highest candidate whose height is at least ``min_head_height``. The face is
+   searched for around each blob at the sizes a face box has at the blob's depth (``face_box``, 0.12–0.25 m:
+   the cascade's boxes on the rendered faces measure 0.16–0.19 m), and not at all around a blob too far for a
+   face to fill the cascade's 24-pixel window (beyond 5.3 m at a focal length of 512 px);
 4. the hands: the two other candidates within ``reach`` of the head with the best scores (match confidence ×
    mean skin probability of the blob) whose size is a hand's (the disc of the blob's area at its depth has a
    radius of at most ``hand_radius``, 8 cm); of two such candidates closer than ``min_hand_gap`` (0.25 m: a hand
@@ -138,7 +141,8 @@ class HeadHandsDetector:
     cascade (``face=False``: no face detection, the head is the highest blob); ``min_area``: the smallest blob
     in pixels (default 20 at 640×480, in proportion to the image area, at least 4); ``stereo_gate``: the matched
     blobs checked against dense stereo at ``gate_scale`` of the full size, and the gated blobs when none is left
-    that can be a head (step 1; ``max_disparity_error``, ``surface_offset``); ``min_hand_gap``: step 4."""
+    that can be a head (step 1; ``max_disparity_error``, ``surface_offset``); ``face_box``: the sizes, metres, of
+    the face boxes searched for at a blob's depth (step 3, :meth:`faces_near`); ``min_hand_gap``: step 4."""
 
     def __init__(
         self,
@@ -160,6 +164,7 @@ class HeadHandsDetector:
         surface_offset: float = 1.0,
         min_hand_gap: float = 0.25,
         max_disparity_error: float = 2.0,
+        face_box: tuple[float, float] = (0.12, 0.25),
     ):
         from jaxmocap.features.skin import default_skin_model
 
@@ -188,6 +193,14 @@ class HeadHandsDetector:
 
             self.gate = StereoGate(rig, self.views, gate_scale, self.max_range, self.height_range)
         self._centre = np.asarray(camera.camera_centres(rig.to_jax(jnp.float32)), np.float64)[self.views[0]]
+        i = self.views[0]
+        self._axis = np.append(np.asarray(rig.R[i], np.float64)[2], np.asarray(rig.t[i], np.float64)[2])
+        self._focal = float(np.asarray(rig.K[i], np.float64)[0, 0])
+        self.face_box = tuple(float(s) for s in face_box)
+
+    def _depth(self, pts: np.ndarray) -> np.ndarray:
+        """Depths ``(K,)`` of world points ``pts (K, 3)`` along the first view's optical axis, metres."""
+        return pts @ self._axis[:3] + self._axis[3]
 
     def candidates(self, images) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``(points (K, 3), first-view centroids (K, 2), scores (K,), radii (K,))`` of the plausible blobs; a
@@ -232,9 +245,7 @@ class HeadHandsDetector:
         uv = blobs[0].centroids[first].reshape(-1, 2)
         skinness = _mean_by_label(blobs[0].labels, prob[0], self.max_blobs)
         score = conf * skinness[first] if n else conf
-        R, t, K = (np.asarray(a[i], np.float64) for a in (self.rig.R, self.rig.t, self.rig.K))
-        depth = pts @ R[2] + t[2]
-        radius = np.sqrt(blobs[0].areas[first] / np.pi) * depth / K[0, 0] if n else conf
+        radius = np.sqrt(blobs[0].areas[first] / np.pi) * self._depth(pts) / self._focal if n else conf
         return pts, uv, score, radius
 
     def _gated_blobs(self, frame):
@@ -259,25 +270,48 @@ class HeadHandsDetector:
             uv = cv2.projectPoints(pts, cv2.Rodrigues(R)[0], t, K, d)[0].reshape(-1, 2)
         else:
             uv = np.zeros((0, 2))
-        depth = pts @ R[2] + t[2]
+        depth = self._depth(pts)
         radius = np.sqrt(b.areas / np.pi) * depth / g.P1[0, 0]
         # the disparity is the visible surface's; a head or a fist is round: its centre lies a radius behind
         ray = pts - self._centre
         pts = pts + self.surface_offset * radius[:, None] * ray / np.linalg.norm(ray, axis=1, keepdims=True)
         return pts, uv, score, radius
 
-    def faces_near(self, image: np.ndarray, uv: np.ndarray, half: int = 48) -> np.ndarray:
-        """Face boxes ``(F, 4)`` found in windows of ``2·half`` pixels around the centroids ``uv (K, 2)`` (a face
-        is searched for only where a candidate blob is: a fraction of the cost of the whole image)."""
+    def faces_near(
+        self, image: np.ndarray, uv: np.ndarray, depth: np.ndarray | None = None, half: int = 48
+    ) -> np.ndarray:
+        """Face boxes ``(F, 4)`` found around the centroids ``uv (K, 2)`` (a face is searched for only where a
+        candidate blob is: a fraction of the cost of the whole image).
+
+        Without ``depth``: in windows of ``2·half`` pixels, boxes of every size from the detector's ``min_size``.
+        With the blobs' depths ``depth (K,)`` (metres along the first camera's axis): only boxes whose size at that
+        depth is a face's, ``face_box`` metres, i.e. ``s f / Z`` pixels for ``s`` in ``face_box``, in a window of
+        ± the largest such box (a box that holds the centroid lies within it); a blob so far that the largest box
+        is smaller than the cascade's window (24 px: no face there can be found) is not searched at all. Both
+        bounds cut the cascade's work (its cost grows with the window's area and the number of scales) and the
+        first drops boxes of skin-coloured clutter around a blob that are far larger than a face would be there."""
         H, W = image.shape[:2]
+        fd = self.face_detector
+        uv = np.asarray(uv, np.float64).reshape(-1, 2)
         out = []
-        for u, v in np.asarray(uv, np.float64).reshape(-1, 2):
-            x0, y0 = max(int(u) - half, 0), max(int(v) - half, 0)
-            crop = image[y0 : min(int(v) + half, H), x0 : min(int(u) + half, W)]
-            if min(crop.shape[:2]) < 2 * self.face_detector.min_size[0]:
+        for k, (u, v) in enumerate(uv):
+            lo, hi = None, None
+            if depth is None:
+                h = half
+            else:
+                z = float(depth[k])
+                sizes = [self._focal * s / z for s in self.face_box] if z > 0 else [0.0, 0.0]
+                if sizes[1] < max(fd.window):
+                    continue
+                lo = max(fd.min_size[0], fd.window[0], int(np.floor(sizes[0])))
+                hi = int(np.ceil(sizes[1]))
+                lo, hi, h = (lo, lo), (hi, hi), hi
+            x0, y0 = max(int(u) - h, 0), max(int(v) - h, 0)
+            crop = image[y0 : min(int(v) + h, H), x0 : min(int(u) + h, W)]
+            if min(crop.shape[:2]) < max(2 * fd.min_size[0], fd.window[0]):
                 continue
-            for x, y, w, h in self.face_detector.detect(crop):
-                out.append((x + x0, y + y0, w, h))
+            for x, y, w, bh in fd.detect(crop, lo, hi):
+                out.append((x + x0, y + y0, w, bh))
         return np.asarray(out, np.float64).reshape(-1, 4)
 
     def __call__(self, images, model=None, reference: np.ndarray | None = None) -> HeadHands | None:
@@ -292,7 +326,7 @@ class HeadHandsDetector:
         pts, uv, conf, radius = self.candidates(images)
         faces = np.zeros((0, 4))
         if self.face_detector is not None and len(pts):
-            faces = self.faces_near(images[self.views[0]], uv)
+            faces = self.faces_near(images[self.views[0]], uv, self._depth(pts))
         return Sighting(pts, uv, conf, radius, faces)
 
     def decide(self, seen: Sighting, model=None, reference: np.ndarray | None = None) -> HeadHands | None:

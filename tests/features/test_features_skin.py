@@ -133,6 +133,9 @@ def test_face_detector_finds_the_face():
     assert x <= 205 <= x + w and y <= 195 <= y + h  # face centre read off the image by eye
     assert 80 <= w <= 220
     assert len(FaceDetector().detect(np.full((240, 320, 3), 128, np.uint8))) == 0
+    # bounds on the boxes searched for: the same box when they hold it, none when the largest is smaller
+    assert np.array_equal(FaceDetector().detect(img, (w // 2, w // 2), (2 * w, 2 * w)), faces)
+    assert len(FaceDetector().detect(img, max_size=(w // 2, w // 2))) == 0
 
 
 def test_face_detector_missing_cascade(tmp_path):

@@ -182,6 +182,33 @@ def test_face_detector_chooses_the_head_blob_on_a_real_face():
     assert hh.choose_head(pts, uv, faces) == (1, "face")
 
 
+def test_face_search_at_a_blobs_depth_finds_the_cascades_face_and_nothing_a_face_cannot_be(monkeypatch):
+    """The real face around a blob on it (first view of focal length f = 512 px). The whole-image cascade (OpenCV,
+    the reference) finds one 134-px box. At the depth where that box is 0.18 m (``Z = f · 0.18 / 134``) the
+    search at the blob's depth finds it again (within 2 px: the cascade sees a crop); at 3 m, where a face box
+    (``face_box``, 0.12–0.25 m) spans 20–43 px, it finds nothing (so big a face is no face there); beyond
+    ``f · 0.25 / 24`` = 5.33 m, where no face box fills the cascade's 24-px window, the cascade does not run."""
+    img = cv2.imread(str(FACE))
+    K = np.array([[512.0, 0, 200], [0, 512, 200], [0, 0, 1]])
+    rig = camera.Rig(
+        K=np.stack([K, K]), dist=np.zeros((2, 5)), R=np.stack([np.eye(3)] * 2),
+        t=np.array([[0.0, 0, 0], [-0.3, 0, 0]]), names=("a", "b"), image_size=((400, 400),) * 2,
+    )  # fmt: skip
+    det = hh.HeadHandsDetector(rig, stereo_gate=False)
+    (whole,) = FaceDetector().detect(img)
+    uv = np.array([[205.0, 195.0]])
+    (found,) = det.faces_near(img, uv, np.array([512 * 0.18 / whole[2]]))
+    assert np.abs(found - whole).max() <= 2
+    assert len(det.faces_near(img, uv, np.array([3.0]))) == 0
+    calls = []
+    detect = det.face_detector.detect
+    monkeypatch.setattr(det.face_detector, "detect", lambda *a: calls.append(a[1:]) or detect(*a))
+    det.faces_near(img, uv, np.array([5.3]))
+    assert calls == [((24, 24), (25, 25))]  # boxes of 11.6–24.2 px: from the window, 24, to ⌈24.2⌉
+    det.faces_near(img, uv, np.array([5.4]))
+    assert len(calls) == 1
+
+
 def test_hands_assigned_by_side_facing_the_camera():
     """A camera at the origin looking along +y (world z up, image y down): camera x = world x. A person at y = 3
     facing it faces −y, so their left ``ẑ × f̂`` is +x: the hand at larger world x is the left one."""
