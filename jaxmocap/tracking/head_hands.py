@@ -197,6 +197,10 @@ class HeadHandsDetector:
         self._axis = np.append(np.asarray(rig.R[i], np.float64)[2], np.asarray(rig.t[i], np.float64)[2])
         self._focal = float(np.asarray(rig.K[i], np.float64)[0, 0])
         self.face_box = tuple(float(s) for s in face_box)
+        if len(self.face_box) != 2 or not 0 < self.face_box[0] <= self.face_box[1]:
+            raise ValueError(
+                f"face_box must be (smallest, largest) face box in metres, 0 < smallest ≤ largest: {face_box}"
+            )
 
     def _depth(self, pts: np.ndarray) -> np.ndarray:
         """Depths ``(K,)`` of world points ``pts (K, 3)`` along the first view's optical axis, metres."""

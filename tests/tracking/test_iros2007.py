@@ -207,6 +207,8 @@ def test_face_search_at_a_blobs_depth_finds_the_cascades_face_and_nothing_a_face
     assert calls == [((24, 24), (25, 25))]  # boxes of 11.6–24.2 px: from the window, 24, to ⌈24.2⌉
     det.faces_near(img, uv, np.array([5.4]))
     assert len(calls) == 1
+    with pytest.raises(ValueError, match="face_box"):
+        hh.HeadHandsDetector(rig, stereo_gate=False, face_box=(0.25, 0.12))
 
 
 def test_hands_assigned_by_side_facing_the_camera():
