@@ -296,25 +296,23 @@ class HeadHandsDetector:
         first drops boxes of skin-coloured clutter around a blob that are far larger than a face would be there."""
         H, W = image.shape[:2]
         fd = self.face_detector
-        uv = np.asarray(uv, np.float64).reshape(-1, 2)
+        window = fd.window  # the cascade's own: no smaller box is found
+        smallest, least_crop = max(fd.min_size[0], window[0]), max(2 * fd.min_size[0], window[0])
         out = []
-        for k, (u, v) in enumerate(uv):
-            lo, hi = None, None
-            if depth is None:
-                h = half
-            else:
+        for k, (u, v) in enumerate(np.asarray(uv, np.float64).reshape(-1, 2)):
+            h, bounds = half, (None, None)
+            if depth is not None:
                 z = float(depth[k])
-                sizes = [self._focal * s / z for s in self.face_box] if z > 0 else [0.0, 0.0]
-                if sizes[1] < max(fd.window):
+                if z <= 0 or self._focal * self.face_box[1] / z < max(window):
                     continue
-                lo = max(fd.min_size[0], fd.window[0], int(np.floor(sizes[0])))
-                hi = int(np.ceil(sizes[1]))
-                lo, hi, h = (lo, lo), (hi, hi), hi
+                h = int(np.ceil(self._focal * self.face_box[1] / z))  # the largest box, pixels
+                lo = max(smallest, int(np.floor(self._focal * self.face_box[0] / z)))
+                bounds = ((lo, lo), (h, h))
             x0, y0 = max(int(u) - h, 0), max(int(v) - h, 0)
             crop = image[y0 : min(int(v) + h, H), x0 : min(int(u) + h, W)]
-            if min(crop.shape[:2]) < max(2 * fd.min_size[0], fd.window[0]):
+            if min(crop.shape[:2]) < least_crop:
                 continue
-            for x, y, w, bh in fd.detect(crop, lo, hi):
+            for x, y, w, bh in fd.detect(crop, *bounds):
                 out.append((x + x0, y + y0, w, bh))
         return np.asarray(out, np.float64).reshape(-1, 4)
 
