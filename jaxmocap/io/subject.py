@@ -53,6 +53,8 @@ from jaxmocap.errors import MocapInputError
 from jaxmocap.geometry.body import EVAL_JOINTS
 
 __all__ = [
+    "NOISY_VIEW",
+    "OUTLIER_FACTOR",
     "Person",
     "SubjectKeypoints",
     "ViewGeometry",
@@ -65,6 +67,8 @@ __all__ = [
     "multiview_persons",
     "select_subject",
     "subject_box",
+    "view_noise",
+    "view_noise_notes",
 ]
 
 C_MIN = 0.3
@@ -94,10 +98,14 @@ class ViewGeometry:
         ab = cv2.undistortPoints(flat, self.K[v], self.dist[v]).reshape(*kp.shape[:-1], 2)
         return np.concatenate([ab, kp[..., 2:3]], axis=-1)
 
-    def triangulate(self, views: list[int], ab: np.ndarray) -> np.ndarray:
-        """Joints ``(J, 3)`` from ``ab (n, J, 3)`` of ``views`` (weights: confidence > ``C_MIN``); NaN for a joint
-        with fewer than two such views."""
+    def triangulate(self, views: list[int], ab: np.ndarray, scale: np.ndarray | None = None) -> np.ndarray:
+        """Joints ``(J, 3)`` from ``ab (n, J, 3)`` of ``views`` (weights: confidence > ``C_MIN``, times ``scale``
+        ``(n,)`` per view or ``(n, J)`` per view and joint when given); NaN for a joint with fewer than two such views."""
         w = np.where(ab[..., 2] > C_MIN, 1.0, 0.0)  # (n, J)
+        seen = np.sum(w, axis=0)
+        if scale is not None:
+            scale = np.asarray(scale, np.float64)
+            w = w * (scale[:, None] if scale.ndim == 1 else scale)
         P = self.P[views]  # (n, 3, 4)
         rows_a = w[..., None] * (ab[..., 0:1] * P[:, None, 2] - P[:, None, 0])  # (n, J, 4)
         rows_b = w[..., None] * (ab[..., 1:2] * P[:, None, 2] - P[:, None, 1])
@@ -106,7 +114,7 @@ class ViewGeometry:
         h = vh[:, -1]
         with np.errstate(all="ignore"):
             X = h[:, :3] / h[:, 3:4]
-        X[np.sum(w, axis=0) < 2] = np.nan
+        X[seen < 2] = np.nan
         return X
 
     def in_front(self, views: list[int], X: np.ndarray) -> np.ndarray:
@@ -684,3 +692,99 @@ def body_dimensions(keypoints: np.ndarray, rig) -> dict[str, float]:
         "hip_drop": 0.0,
     }
     return {n: v for n, v in dims.items() if np.isfinite(v) and (v > 0 or n == "hip_drop")}
+
+
+#: A residual whose ``r² / (2 − h)`` exceeds this many times the view's median is a wrong detection, not noise
+#: (:func:`view_noise`; for Gaussian noise one residual in a thousand).
+OUTLIER_FACTOR = 10.0
+
+
+def view_noise(
+    keypoints: np.ndarray, rig, min_views: int = 3, rounds: int = 8, max_frames: int = 200
+) -> np.ndarray:
+    """``(V,)``: each view's keypoint noise (px per coordinate), measured from how its detections agree with the
+    other views' (a variance-component estimate).
+
+    Every joint of every frame seen by at least ``min_views`` views (confidence > ``C_MIN``) is triangulated from
+    all of them, each view's rows weighed by ``f_v / σ_v`` (one standard deviation of its noise in normalised
+    coordinates), and reprojected. A view's squared residual ``r²`` (px) has the expectation ``σ_v² (2 − h)``, with
+    ``h`` its share of the fit (the trace of its 2×2 block of the hat matrix ``A N⁻¹ Aᵀ`` of the weighted
+    projection Jacobians ``A``, ``N = Σ_v A_vᵀ A_v``): the triangulated point moves towards every detection, most
+    towards a view that decides it alone. So ``σ_v² = Σ r² / Σ (2 − h)`` over the view's residuals (Förstner's
+    estimate), leaving out a residual whose ``r² / (2 − h)`` is more than :data:`OUTLIER_FACTOR` times the view's
+    median (a wrong detection, not noise). Starting from equal noise, the weights and the estimate
+    are computed ``rounds`` times (iteratively reweighted least squares, as in a variance-component
+    estimation): with equal weights a noisy view's error spreads into the views that constrain the same direction.
+    With two views the two residuals are one disagreement split between them, hence ``min_views = 3``. NaN for a
+    view with fewer than 20 residuals. ``keypoints (T, V, J, 3)`` in the pixels of ``rig``; at most ``max_frames``
+    frames, spread evenly over the ``T``."""
+    kp = np.asarray(keypoints, np.float64)
+    geo = ViewGeometry(rig)
+    V = geo.num_views
+    views = list(range(V))
+    R, t = geo.P[:, :, :3], geo.P[:, :, 3]
+    picked = np.unique(np.linspace(0, kp.shape[0] - 1, min(max_frames, kp.shape[0])).round().astype(int))
+    # every (frame, joint) seen by min_views views, as one batch of points: ab (V, M, 3)
+    ab = np.stack([geo.normalise(v, kp[picked, v]) for v in views]).reshape(V, -1, 3)
+    obs = ab[..., 2] > C_MIN
+    seen = np.sum(obs, axis=0) >= min_views
+    ab, obs = ab[:, seen], obs[:, seen]
+    out = np.full(V, np.nan)
+    if not seen.any():
+        return out
+    sigma = np.ones(V)
+    for _ in range(rounds):
+        scale = geo.f / sigma  # (V,)
+        # the linear triangulation's rows measure the error times the point's depth in each view: weighed again
+        # by 1/depth, its solution is the weighted reprojection fit to first order
+        X = geo.triangulate(views, ab, scale)  # (M, 3)
+        z = np.einsum("vj,nj->vn", R[:, 2], X) + t[:, 2:3]  # (V, M)
+        with np.errstate(all="ignore"):
+            X = geo.triangulate(views, ab, scale[:, None] / np.where(z > 1e-6, z, np.inf))
+        xc = np.einsum("vij,nj->vni", R, X) + t[:, None]  # (V, M, 3)
+        z = xc[..., 2]
+        with np.errstate(all="ignore"):
+            a, b = xc[..., 0] / z, xc[..., 1] / z
+            zero = np.zeros_like(a)
+            D = np.stack([np.stack([1 / z, zero, -a / z], -1), np.stack([zero, 1 / z, -b / z], -1)], -2)
+            A = np.einsum("vnij,vjk->vnik", D, R) * (scale[:, None] * obs)[..., None, None]  # (V, M, 2, 3)
+            A = np.where(np.isfinite(A), A, 0.0)
+            Ni = np.linalg.pinv(np.einsum("vnij,vnik->njk", A, A))  # (M, 3, 3)
+        h = np.einsum("vnij,njk,vnik->vn", A, Ni, A)  # (V, M): each view's share of the fit
+        out = np.full(V, np.nan)
+        for v in views:
+            r = geo.joint_residuals(v, X, ab[v])
+            ok = obs[v] & np.isfinite(r) & (z[v] > 0) & (2.0 - h[v] > 0.05)
+            r2, dof = r[ok] ** 2, 2.0 - h[v][ok]
+            if r2.size >= 20:
+                kept = r2 / dof < OUTLIER_FACTOR * np.median(r2 / dof)
+                out[v] = float(np.sqrt(np.sum(r2[kept]) / np.sum(dof[kept])))
+        if not np.all(np.isfinite(out)):
+            break
+        sigma = out
+    return out
+
+
+#: A camera whose keypoint noise is this many times the median camera's is named in a run's notes
+#: (:func:`view_noise_notes`).
+NOISY_VIEW = 2.0
+
+
+def view_noise_notes(names: Sequence[str], sigma: np.ndarray) -> list[str]:
+    """What a run tells of its cameras' keypoint noise ``sigma (V,)`` (:func:`view_noise`): the noise of each
+    measured camera, and the cameras :data:`NOISY_VIEW` times as noisy as the median camera or more, whose
+    calibration or synchronisation is worth checking. Nothing when no camera was measured."""
+    sigma = np.asarray(sigma, np.float64)
+    if not np.any(np.isfinite(sigma)):
+        return []
+    shown = ", ".join(f"{n} {s:.1f}" for n, s in zip(names, sigma, strict=True) if np.isfinite(s))
+    out = [f"keypoint noise per camera (px, from how its detections agree with the others'): {shown}"]
+    middle = float(np.nanmedian(sigma))
+    noisy = [n for n, s in zip(names, sigma, strict=True) if s >= NOISY_VIEW * middle]
+    if noisy:
+        out.append(
+            f"{', '.join(noisy)}: detections {NOISY_VIEW:g}× or more as far from the other cameras' as the median "
+            "camera's; check the calibration and synchronisation of "
+            + ("that camera" if len(noisy) == 1 else "those cameras")
+        )
+    return out

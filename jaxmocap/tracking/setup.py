@@ -194,6 +194,7 @@ class TrackSetup:
         self.notes = list(getattr(source, "notes", []))
         self.preset = presets.get(o.preset) if o.preset is not None else None
         self.body_dimensions = self._measured_body()
+        self._note_view_noise()
         body = None if o.body in ("detections", "calibrate") else o.body
         # dimensions measured from the detections replace the input's own body file (``body = "detections"``)
         fallback = None if self.body_dimensions else source.body_path
@@ -323,6 +324,23 @@ class TrackSetup:
                 if xs.size >= 50:
                     centroids[i, v] = xs.mean(), ys.mean()
         check_rig_silhouettes(fb.rig, centroids, src.description.get("calibration"))
+
+    def _note_view_noise(self) -> None:
+        """With detections in three or more views: each camera's keypoint noise, measured from how its detections
+        agree with the other cameras' (:func:`jaxmocap.io.subject.view_noise`), in the run's notes, with the cameras to check
+        (:func:`jaxmocap.io.subject.view_noise_notes`). Told, not used: weighing each view's detections in the refinement by ``(σ̄/σ_v)²`` moved the
+        leave-one-camera-out errors of ``benchmarks/experiments/pose2sim_track.py --leave-one-out`` up for three of
+        the four held-out cameras (35.0 / 14.7 / 42.5 / 18.4 px against 34.1 / 13.8 / 40.2 / 19.2, seeds 0-2 alike):
+        the cameras there disagree by biases (calibration, where the detector puts a joint), not by noise."""
+        src = self.source
+        if not src.has_keypoints or src.rig.num_views < 3:
+            return
+        from jaxmocap.io.subject import view_noise, view_noise_notes
+
+        sigma = view_noise(src.keypoints, src.rig)
+        if not np.any(np.isfinite(sigma)):
+            return
+        self.notes.extend(view_noise_notes(list(src.rig.names), sigma))
 
     def _measured_body(self) -> dict | None:
         """The subject's dimensions measured from the input's detections (``body = "detections"``, or no body

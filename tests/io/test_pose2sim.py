@@ -187,6 +187,9 @@ def test_track_real_frames_close_to_reference(project, tmp_path, model):
         out=tmp_path / "run",
     )
     assert any("body dimensions measured" in n for n in res.notes)
+    # each camera's keypoint noise (jaxmocap.io.subject.view_noise) told, for the four cameras
+    (noise,) = [n for n in res.notes if n.startswith("keypoint noise per camera")]
+    assert len(noise.split(": ", 1)[1].split(", ")) == 4, noise
     ref, _, _ = reference_joints(DATA / "reference.trc")
     err = np.linalg.norm(res.joints - ref, axis=-1) * 1000.0
     assert err.shape == (len(FRAMES), len(EVAL_JOINTS))
