@@ -366,7 +366,7 @@ SCRIPTS: dict[str, Script] = {
     "accuracy_default": Script(
         "jaxmocap track with its defaults on recording-like input, against triangulating the detections",
         "experiments/accuracy_default.py",
-        "--seeds 3",
+        "--seeds 5",
         writes=("accuracy_default.md",),
         slow=True,
     ),

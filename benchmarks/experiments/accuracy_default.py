@@ -95,29 +95,27 @@ COMMON = [j for j, n in enumerate(EVAL_JOINTS) if n != "head"]
 GOALS = {"ring4": 30.0, "stereo": 60.0}
 GOAL_FPS = 10.0
 #: what the tables show (written for the measured tables: ``python benchmarks/experiments/accuracy_default.py
-#: --seeds 3``, 2026-11-29 17:20 UTC)
+#: --seeds 5``, 2026-11-30 05:41 UTC)
 READING = (
-    "Reading (written for the runs of 2026-11-29 17:20-17:32 UTC, 3 seeds, the defaults: the filter's estimate "
-    "refined on each frame's detections and the particles moved with it, `jaxmocap.tracking.refine`, prior weight 1 "
-    "with four cameras and 30 with the stereo pair, whose refinement also reads the depth maps at the trunk's and "
-    "the limbs' joints (sigma_d 5 cm); the keypoints cue at weight 32, the root's angles in the velocity "
-    "prediction; 64 silhouette samples per view for the coverage cue, `jaxmocap.tracking.features.COVERAGE_SAMPLES`; "
-    "the first pose rounded as it is since 2026-11-29 morning): both error goals hold; the four-camera speed goal "
-    "fails this day. Stereo: 54.0 mm over the 15 joints (52.1 mm mean, 31.8 mm median over the 14; 52.2 mm in the "
-    "runs of 00:00 UTC) against 858.8 mm (250.6 mm) for the triangulation (at f = 256 px a 0.30 m baseline about "
-    "4 m from the subject turns one pixel of disparity into about 0.2 m of depth: the detections leave a joint's "
-    "distance along the rays nearly free, the depth maps fix it); every clip 24.4-73.2 mm, the crouch, the turn and "
-    "the walk the worst; the wrists and ankles still have long tails (a limb put on the wrong side of the body along "
-    "the rays for a few frames), at 14.1 frames/s (16.8 at 00:00 UTC). Four cameras: 28.8 mm over the 15 joints "
-    "(28.4 mm mean, 25.3 mm median over the 14; 28.7 mm at 00:00 UTC) against 43.2 mm (35.0 mm) for the "
-    "triangulation of the same detections, below it on every clip and every joint, at 8.8 frames/s (8.1-9.7; 10.3 "
-    "at 00:00 UTC): below the 10 frames/s goal. The runs had the machine to themselves (load 1.4-2.3 at their "
-    "starts and ends: the tracker's own threads) on a day its XLA programs ran 1.5-1.8x slower than on 2026-11-25 "
-    "(`hybrid_vs_apf.md`, `vs_bodytrack.md` of the same afternoon): absolute rates on this machine move by that "
-    "much; side by side in one process against 128 samples and the revision before: "
-    "`benchmarks/results/track_rate.md`. No run started more than 0.5 m off: the first pose is the model fitted to "
-    "the detections' reprojection, with the depth maps deciding along the rays "
-    "(`jaxmocap.tracking.init.keypoint_pose`)."
+    "Reading (written for the runs of 2026-11-30 05:41-05:48 UTC, 5 seeds, on an AMD EPYC family 25 model 17 "
+    "(AVX-512), the defaults: the filter's estimate refined on each frame's detections and the particles moved "
+    "with it, `jaxmocap.tracking.refine`, prior weight 1 with four cameras and 30 with the stereo pair, whose "
+    "refinement also reads the depth maps at the trunk's and the limbs' joints (sigma_d 5 cm); the keypoints cue "
+    "at weight 32, the root's angles in the velocity prediction; 64 silhouette samples per view for the coverage "
+    "cue, `jaxmocap.tracking.features.COVERAGE_SAMPLES`): both goals hold with both rigs. Stereo: 52.0 mm over the "
+    "15 joints (49.6 mm mean, 30.9 mm median over the 14; 54.0 mm with 3 seeds on 2026-11-29 on the AVX2 EPYC, "
+    "model 1) against 858.9 mm (250.6 mm) for the triangulation (at f = 256 px a 0.30 m baseline about 4 m from "
+    "the subject turns one pixel of disparity into about 0.2 m of depth: the detections leave a joint's distance "
+    "along the rays nearly free, the depth maps fix it); every clip 23.4-72.2 mm, the crouch and the walk above "
+    "60; the wrists and ankles still have long tails (a limb put on the wrong side of the body along the rays for "
+    "a few frames), at 28.9 frames/s. Four cameras: 28.7 mm over the 15 joints (28.4 mm mean, 25.4 mm median over "
+    "the 14; 28.8 mm with 3 seeds on 2026-11-29) against 43.2 mm (35.0 mm) for the triangulation of the same "
+    "detections, below it on every clip and every joint, at 18.6 frames/s (15.8-20.2; 8.8 on the model 1 on "
+    "2026-11-29, whose XLA programs run 1.5-1.8x slower). The runs had the machine to themselves (load 1.5-2.5 at "
+    "their starts and ends: the tracker's own threads): absolute rates, which move with the CPU the machine is "
+    "given; side by side in one process against the revision before: `benchmarks/results/track_rate.md`. No run "
+    "started more than 0.5 m off: the first pose is the model fitted to the detections' reprojection, with the "
+    "depth maps deciding along the rays (`jaxmocap.tracking.init.keypoint_pose`)."
 )
 #: a run whose first frame is off by more than this (mean over the joints, mm) did not start on the subject
 BAD_START_MM = 500.0
