@@ -225,6 +225,45 @@ def test_plate_source_is_what_a_recording_gives(tmp_path):
     assert all(len(src.read(t).masks) == 2 for t in range(3))
 
 
+#: four distorted cameras looking at a person-sized volume (OpenCV's rotation vectors and translations)
+_RVECS = ((1.4, 0.0, 0.0), (1.2, 0.6, -0.3), (1.3, -0.7, 0.4), (1.5, 0.2, 0.1))
+_TVECS = ((0.0, 1.0, 3.0), (0.3, 0.9, 3.2), (-0.2, 1.1, 3.1), (0.1, 1.0, 2.9))
+
+
+def _cameras(num_views):
+    """``(K, dist, rvecs, tvecs)`` of the first ``num_views`` cameras above (f = 300 px, radial and tangential
+    distortion)."""
+    import numpy as np
+
+    K = np.array([[300.0, 0.0, 160.0], [0.0, 300.0, 120.0], [0.0, 0.0, 1.0]])
+    dist = np.array([-0.1, 0.02, 0.001, -0.001, 0.0])
+    return K, dist, np.array(_RVECS[:num_views]), np.array(_TVECS[:num_views])
+
+
+def _distorted_views(X, num_views):
+    """``(rig, kp)``: the first ``num_views`` of the cameras above (K, f = 300 px, radial and tangential
+    distortion) and the points ``X (T, J, 3)`` projected into them by ``cv2.projectPoints``, confidence 1:
+    ``kp (T, V, J, 3)``."""
+    import cv2
+    import numpy as np
+
+    from jaxmocap.geometry import camera
+
+    K, dist, rvecs, tvecs = _cameras(num_views)
+    rig = camera.from_opencv(
+        np.stack([K] * num_views),
+        np.stack([dist] * num_views),
+        np.stack([cv2.Rodrigues(r)[0] for r in rvecs]),
+        tvecs,
+    )
+    T, J = X.shape[:2]
+    kp = np.ones((T, num_views, J, 3))
+    for v in range(num_views):
+        uv, _ = cv2.projectPoints(X.reshape(-1, 1, 3), rvecs[v], tvecs[v], K, dist)
+        kp[:, v, :, :2] = uv.reshape(T, J, 2)
+    return rig, kp
+
+
 def test_accuracy_default_baseline_triangulates_as_opencv():
     """The triangulation baseline of ``experiments/accuracy_default.py``: noise-free detections of three distorted
     cameras give back the 3D joints (closed form: the points projected by OpenCV); with pixel noise and two views
@@ -235,27 +274,14 @@ def test_accuracy_default_baseline_triangulates_as_opencv():
     import cv2
     import numpy as np
 
-    from jaxmocap.geometry import camera
     from jaxmocap.geometry.body import EVAL_JOINTS
 
     acc = runner.load("accuracy_default")
     rng = np.random.default_rng(3)
-    K = np.array([[300.0, 0.0, 160.0], [0.0, 300.0, 120.0], [0.0, 0.0, 1.0]])
-    dist = np.array([-0.1, 0.02, 0.001, -0.001, 0.0])
-    rvecs = [np.array([1.4, 0.0, 0.0]), np.array([1.2, 0.6, -0.3]), np.array([1.3, -0.7, 0.4])]
-    tvecs = [np.array([0.0, 1.0, 3.0]), np.array([0.3, 0.9, 3.2]), np.array([-0.2, 1.1, 3.1])]
     V, T, J = 3, 4, len(EVAL_JOINTS)
-    rig = camera.from_opencv(
-        np.stack([K] * V),
-        np.stack([dist] * V),
-        np.stack([cv2.Rodrigues(r)[0] for r in rvecs]),
-        np.stack(tvecs),
-    )
     X = rng.uniform([-0.5, -0.5, 0.0], [0.5, 0.5, 1.8], (T, J, 3))
-    kp = np.ones((T, V, J, 3))
-    for v in range(V):
-        uv, _ = cv2.projectPoints(X.reshape(-1, 1, 3), rvecs[v], tvecs[v], K, dist)
-        kp[:, v, :, :2] = uv.reshape(T, J, 2)
+    rig, kp = _distorted_views(X, V)
+    K, dist, rvecs, tvecs = _cameras(V)
     knee = EVAL_JOINTS.index("left_knee")
     kp[1, 1:, knee, 2] = 0.0  # seen by view 0 only
     got, views = acc.triangulate_detections(types.SimpleNamespace(rig=rig, keypoints=kp))
@@ -298,44 +324,17 @@ def test_pose2sim_procedure_rejects_the_view_that_disagrees_and_fills_short_gaps
     left out (the point is the other three cameras' triangulation, within 1 mm of the truth, where the plain
     weighted DLT is pulled centimetres off); a joint whose four detections all disagree is rejected; a gap of three
     such frames is filled by cubic interpolation (a straight-line motion: exact) and one of twelve is not."""
-    import cv2
     import numpy as np
 
-    from jaxmocap.geometry import camera
     from jaxmocap.geometry.body import EVAL_JOINTS
 
     p2s = runner.load("pose2sim_track")
-    K = np.array([[300.0, 0.0, 160.0], [0.0, 300.0, 120.0], [0.0, 0.0, 1.0]])
-    dist = np.array([-0.1, 0.02, 0.001, -0.001, 0.0])
-    rvecs = [
-        np.array([1.4, 0.0, 0.0]),
-        np.array([1.2, 0.6, -0.3]),
-        np.array([1.3, -0.7, 0.4]),
-        np.array([1.5, 0.2, 0.1]),
-    ]
-    tvecs = [
-        np.array([0.0, 1.0, 3.0]),
-        np.array([0.3, 0.9, 3.2]),
-        np.array([-0.2, 1.1, 3.1]),
-        np.array([0.1, 1.0, 2.9]),
-    ]
     V, T, J = 4, 30, len(EVAL_JOINTS)
-    rig = camera.from_opencv(
-        np.stack([K] * V),
-        np.stack([dist] * V),
-        np.stack([cv2.Rodrigues(r)[0] for r in rvecs]),
-        np.stack(tvecs),
-    )
     rng = np.random.default_rng(5)
-    X = rng.uniform([-0.5, -0.5, 0.0], [0.5, 0.5, 1.8], (1, J, 3)) + np.linspace(0, 0.3, T)[:, None, None] * [
-        1,
-        0,
-        0,
-    ]
-    kp = np.full((T, V, J, 3), 0.9)
-    for v in range(V):
-        uv, _ = cv2.projectPoints(X.reshape(-1, 1, 3), rvecs[v], tvecs[v], K, dist)
-        kp[:, v, :, :2] = uv.reshape(T, J, 2)
+    drift = np.linspace(0.0, 0.3, T)[:, None, None] * np.array([1.0, 0.0, 0.0])  # along x, 0.3 m in all
+    X = rng.uniform([-0.5, -0.5, 0.0], [0.5, 0.5, 1.8], (1, J, 3)) + drift
+    rig, kp = _distorted_views(X, V)
+    kp[..., 2] = 0.9
     knee, wrist, ankle = (EVAL_JOINTS.index(n) for n in ("left_knee", "left_wrist", "right_ankle"))
     kp[4, 2, knee, :2] += 80.0  # one view off
     apart = 100.0 * np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])  # every view off another way
