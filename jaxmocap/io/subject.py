@@ -100,7 +100,8 @@ class ViewGeometry:
 
     def triangulate(self, views: list[int], ab: np.ndarray, scale: np.ndarray | None = None) -> np.ndarray:
         """Joints ``(J, 3)`` from ``ab (n, J, 3)`` of ``views`` (weights: confidence > ``C_MIN``, times ``scale``
-        ``(n,)`` per view or ``(n, J)`` per view and joint when given); NaN for a joint with fewer than two such views."""
+        ``(n,)`` per view or ``(n, J)`` per view and joint when given); NaN for a joint with fewer than two such
+        views."""
         w = np.where(ab[..., 2] > C_MIN, 1.0, 0.0)  # (n, J)
         seen = np.sum(w, axis=0)
         if scale is not None:

@@ -327,20 +327,18 @@ class TrackSetup:
 
     def _note_view_noise(self) -> None:
         """With detections in three or more views: each camera's keypoint noise, measured from how its detections
-        agree with the other cameras' (:func:`jaxmocap.io.subject.view_noise`), in the run's notes, with the cameras to check
-        (:func:`jaxmocap.io.subject.view_noise_notes`). Told, not used: weighing each view's detections in the refinement by ``(σ̄/σ_v)²`` moved the
-        leave-one-camera-out errors of ``benchmarks/experiments/pose2sim_track.py --leave-one-out`` up for three of
-        the four held-out cameras (35.0 / 14.7 / 42.5 / 18.4 px against 34.1 / 13.8 / 40.2 / 19.2, seeds 0-2 alike):
-        the cameras there disagree by biases (calibration, where the detector puts a joint), not by noise."""
+        agree with the other cameras' (:func:`jaxmocap.io.subject.view_noise`), in the run's notes with the
+        cameras to check (:func:`jaxmocap.io.subject.view_noise_notes`). Told, not used: weighing each view's
+        detections in the refinement by ``(σ̄/σ_v)²`` moved the leave-one-camera-out errors of
+        ``benchmarks/experiments/pose2sim_track.py --leave-one-out`` up for three of the four held-out cameras
+        (35.0 / 14.7 / 42.5 / 18.4 px against 34.1 / 13.8 / 40.2 / 19.1, seeds 0-2 alike): the cameras there
+        disagree by biases (calibration, where the detector puts a joint), not by noise."""
         src = self.source
         if not src.has_keypoints or src.rig.num_views < 3:
             return
         from jaxmocap.io.subject import view_noise, view_noise_notes
 
-        sigma = view_noise(src.keypoints, src.rig)
-        if not np.any(np.isfinite(sigma)):
-            return
-        self.notes.extend(view_noise_notes(list(src.rig.names), sigma))
+        self.notes.extend(view_noise_notes(list(src.rig.names), view_noise(src.keypoints, src.rig)))
 
     def _measured_body(self) -> dict | None:
         """The subject's dimensions measured from the input's detections (``body = "detections"``, or no body
