@@ -501,7 +501,8 @@ def _add_tracking_commands(sub) -> None:
     tr.add_argument(
         "--particles",
         type=_particle_counts,
-        help="particles (per layer for the annealed filters); partitioned / hierarchical: one count, or one per "
+        help="particles (per layer for the annealed filters; default 300 for full25/full32, 50 when the estimate is "
+        "refined on detections of three or more cameras); partitioned / hierarchical: one count, or one per "
         "partition separated by commas (full25: torso, head, arms, legs, e.g. 1000,200,350,350,350,350)",
     )
     tr.add_argument("--layers", type=int, help="annealing layers (default 5; 2 per level for hierarchical)")

@@ -256,7 +256,15 @@ class TrackSetup:
             raise ValueError(
                 f"the {o.filter} filter has no annealing layers (leave --layers out or set it to 1)"
             )
-        n = o.particles if o.particles is not None else default_particles(self.model.name, o.filter)
+        refine_auto, _ = default_refine(source.rig.num_views, source.has_keypoints)
+        refined_views = (
+            refine_auto if o.refine == "auto" else o.refine
+        ) == "track" and source.rig.num_views >= 3
+        n = (
+            o.particles
+            if o.particles is not None
+            else default_particles(self.model.name, o.filter, refined_views)
+        )
         counts = partition_counts(self.model, o.filter, n, self.groups)  # raises on a bad count
         self.num_particles = list(counts) if isinstance(n, (list, tuple)) else int(n)
         if o.body == "calibrate":

@@ -199,3 +199,19 @@ def test_track_real_frames_close_to_reference(project, tmp_path, model):
     assert np.max(np.mean(no_head, axis=0)) < 200.0
     assert (tmp_path / "run" / "config.toml").is_file()
     assert json.loads((tmp_path / "run" / "run.json").read_text())["model"] == model
+
+
+def test_four_cameras_with_detections_take_the_refined_particle_count(project):
+    """A project of four cameras with detections: the estimate is refined on them (``refine = "track"``), so the
+    APF takes REFINED_VIEWS_PARTICLES per layer; without the refinement it keeps the body's 300."""
+    from jaxmocap.io.pose2sim import open_project
+    from jaxmocap.tracking.options import REFINED_VIEWS_PARTICLES, TrackOptions
+    from jaxmocap.tracking.setup import TrackSetup
+
+    for refine, count in (("auto", REFINED_VIEWS_PARTICLES), ("none", 300)):
+        src = open_project(project)
+        try:
+            setup = TrackSetup(src, TrackOptions(refine=refine))
+            assert (setup.refine, setup.num_particles) == ("track" if refine == "auto" else "none", count)
+        finally:
+            src.close()

@@ -576,3 +576,16 @@ def test_gradient_filters_take_the_default_cues_with_depth(sequence):
     v, g = jax.jit(lambda X: setup.loglik.batch_value_and_grad(X, tobs, setup.layers - 1))(X)
     assert np.all(np.isfinite(np.asarray(v))) and np.all(np.isfinite(np.asarray(g)))
     assert np.all(np.abs(np.asarray(g)).max(-1) > 0)
+
+
+def test_default_particles_per_input_kind():
+    """300 APF particles per layer for the full body; 50 where each frame's estimate is refined on detections of
+    three or more cameras (``refined_views``: the refinement places the joints, the particles only keep the track),
+    not for the other filters or bodies."""
+    from jaxmocap.tracking.options import REFINED_VIEWS_PARTICLES
+
+    assert default_particles("full25", "apf") == default_particles("full32", "apf") == 300
+    assert default_particles("full25", "apf", refined_views=True) == REFINED_VIEWS_PARTICLES == 50
+    assert default_particles("full32", "apf", refined_views=True) == 50
+    assert default_particles("full25", "hybrid", refined_views=True) == 300
+    assert default_particles("upper14", "apf", refined_views=True) == 200
