@@ -278,10 +278,12 @@ SCRIPTS: dict[str, Script] = {
         slow=True,
     ),
     "track_rate": Script(
-        "Frames/s of the defaults (frames read ahead in a thread) against the revision before",
+        "Frames/s of the defaults (50 particles where the estimate is refined on three or more cameras) against the "
+        "revision before",
         "perf/track_rate.py",
-        "--frames 60 --rounds 5 --busy --against 093b6a4 "
-        "--title 'frames read ahead in a thread' --out benchmarks/results/track_rate.md",
+        "--frames 60 --rounds 5 --busy --against 7216380 "
+        "--title '50 particles per layer where the estimate is refined on three or more cameras' "
+        "--out benchmarks/results/track_rate.md",
         writes=("track_rate.md",),
         slow=True,
     ),
