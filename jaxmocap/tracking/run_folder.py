@@ -214,7 +214,9 @@ def check_out(
 ) -> dict | None:
     """Check the output folder (nothing is written): returns the resume checkpoint, or None to start afresh.
 
-    ``description``: the ``run.json`` of this run; a resumed run must have the same ``options`` and ``input``, and
+    ``description``: the ``run.json`` of this run; a resumed run must have the same ``options`` and ``input``, the
+    same resolved particle count (a default that changed between the two versions is named with the option to set),
+    and
     every output it continues from must be there and this run's (module docstring). Raises
     :class:`MocapInputError` with the reason."""
     if out.exists() and not out.is_dir():
@@ -239,6 +241,13 @@ def check_out(
         raise MocapInputError(
             out / RUN_JSON,
             "was written by a run with other options or input: cannot resume it with these",
+        )
+    if "particles" in old and "particles" in desc and old["particles"] != desc["particles"]:
+        n = old["particles"] if isinstance(old["particles"], int) else ",".join(map(str, old["particles"]))
+        raise MocapInputError(
+            out / RUN_JSON,
+            f"was tracked with {n} particles, and this run's default is {desc['particles']}: resume with "
+            f"--particles {n}",
         )
     if old.get("status") == "complete":
         raise MocapInputError(

@@ -20,11 +20,11 @@ DOFS = ("a", "b")
 DESC = {"options": {"seed": 0}, "input": {"frames": 9}, "model": "m", "dof_names": list(DOFS)}
 
 
-def _tracked(out, rows=5):
+def _tracked(out, rows=5, desc=DESC):
     """A folder as a run that tracked ``rows`` frames leaves it (checkpoint after the last)."""
-    run_folder.start_out(out, True, DESC)
+    run_folder.start_out(out, True, desc)
     poses = export.PoseWriter(out, DOFS, "m", fps=30.0)
-    diag = export.DiagnosticsWriter(out, DESC)
+    diag = export.DiagnosticsWriter(out, desc)
     for t in range(rows):
         poses.append(t, [t, -0.5 * t], np.full((15, 3), 0.1 * t))
         diag.append({"frame": t, "seconds": 0.01})
@@ -57,6 +57,17 @@ def test_a_complete_folder_resumes_from_its_checkpoint(tmp_path):
     other = {**DESC, "options": {"seed": 1}}
     with pytest.raises(MocapInputError, match="other options or input"):
         run_folder.check_out(out, other, resume=True, overwrite=False)
+
+
+def test_a_default_particle_count_that_changed_is_named_on_resume(tmp_path):
+    """The same options, but the particle count they resolve to differs (a run of 300 particles per layer resumed
+    by a version whose default for the input is 50): refused, with the option that continues it."""
+    desc = {**DESC, "particles": 300}
+    out = _tracked(tmp_path / "run", desc=desc)
+    with pytest.raises(MocapInputError, match="tracked with 300 particles, and this run's default is 50: resume "
+                       "with --particles 300"):  # fmt: skip
+        run_folder.check_out(out, {**desc, "particles": 50}, resume=True, overwrite=False)
+    assert run_folder.check_out(out, desc, resume=True, overwrite=False) is not None
 
 
 def test_pose_files_that_do_not_cover_the_checkpoint_are_refused(tmp_path):
