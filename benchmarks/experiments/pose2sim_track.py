@@ -258,16 +258,10 @@ def pose2sim_triangulated(rig_full: camera.Rig, kp_full: np.ndarray, cams) -> tu
         if ok.sum() < 4:
             continue
         spline = CubicSpline(frames[ok], out[ok, j], axis=0)
-        gap_start = None
-        for f in range(T + 1):
-            missing = f < T and not ok[f]
-            if missing and gap_start is None:
-                gap_start = f
-            elif not missing and gap_start is not None:
-                inside = gap_start > 0 and f < T
-                if inside and f - gap_start < P2S_INTERP_GAP:
-                    out[gap_start:f, j] = spline(frames[gap_start:f])
-                gap_start = None
+        edges = np.flatnonzero(np.diff(np.r_[0, (~ok).astype(int), 0]))  # each gap's first frame and its end
+        for a, b in zip(edges[::2], edges[1::2], strict=True):
+            if a > 0 and b < T and b - a < P2S_INTERP_GAP:  # between triangulated frames, and short
+                out[a:b, j] = spline(frames[a:b])
     return out, rejected / max(tried, 1)
 
 

@@ -215,9 +215,8 @@ def check_out(
     """Check the output folder (nothing is written): returns the resume checkpoint, or None to start afresh.
 
     ``description``: the ``run.json`` of this run; a resumed run must have the same ``options`` and ``input``, the
-    same resolved particle count (a default that changed between the two versions is named with the option to set),
-    and
-    every output it continues from must be there and this run's (module docstring). Raises
+    same resolved particle count (a default that changed between the two versions is named with the option to
+    set), and every output it continues from must be there and this run's (module docstring). Raises
     :class:`MocapInputError` with the reason."""
     if out.exists() and not out.is_dir():
         raise MocapInputError(out, "exists and is not a folder")

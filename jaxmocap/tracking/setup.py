@@ -256,10 +256,10 @@ class TrackSetup:
             raise ValueError(
                 f"the {o.filter} filter has no annealing layers (leave --layers out or set it to 1)"
             )
-        refine_auto, _ = default_refine(source.rig.num_views, source.has_keypoints)
-        refined_views = (
-            refine_auto if o.refine == "auto" else o.refine
-        ) == "track" and source.rig.num_views >= 3
+        self.refine, prior = default_refine(source.rig.num_views, source.has_keypoints)
+        self.refine = self.refine if o.refine == "auto" else o.refine
+        self.refine_prior = prior if o.refine_prior is None else float(o.refine_prior)
+        refined_views = self.refine == "track" and source.rig.num_views >= 3
         n = (
             o.particles
             if o.particles is not None
@@ -271,9 +271,6 @@ class TrackSetup:
             self.model = self._calibrated_model()
         self.std = diffusion_std(self.model, source.fps) * float(o.diffusion_scale)
         self.likelihood = self._build_likelihood()
-        self.refine, prior = default_refine(source.rig.num_views, source.has_keypoints)
-        self.refine = self.refine if o.refine == "auto" else o.refine
-        self.refine_prior = prior if o.refine_prior is None else float(o.refine_prior)
         if self.refine != "none" and not source.has_keypoints:
             raise ValueError(f"--refine {self.refine} needs 2D keypoints (--keypoints)")
         depth_sigma = (
