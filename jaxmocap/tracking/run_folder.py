@@ -215,9 +215,9 @@ def check_out(
     """Check the output folder (nothing is written): returns the resume checkpoint, or None to start afresh.
 
     ``description``: the ``run.json`` of this run; a resumed run must have the same ``options`` and ``input``, the
-    same resolved particle count (a default that changed between the two versions is named with the option to
-    set), and every output it continues from must be there and this run's (module docstring). Raises
-    :class:`MocapInputError` with the reason."""
+    same resolved defaults (:data:`RESOLVED`: a default that changed between the two versions is named with the
+    option that sets it), and every output it continues from must be there and this run's (module docstring).
+    Raises :class:`MocapInputError` with the reason."""
     if out.exists() and not out.is_dir():
         raise MocapInputError(out, "exists and is not a folder")
     present = [n for n in OUTPUTS if (out / n).exists()]
@@ -236,18 +236,12 @@ def check_out(
         return None
     old = _read_run_json(out)
     desc = json.loads(json.dumps(description))
-    if old.get("options") != desc["options"] or old.get("input") != desc["input"]:
+    if not _same_options(old.get("options"), desc["options"], old) or old.get("input") != desc["input"]:
         raise MocapInputError(
             out / RUN_JSON,
             "was written by a run with other options or input: cannot resume it with these",
         )
-    if "particles" in old and "particles" in desc and old["particles"] != desc["particles"]:
-        n = old["particles"] if isinstance(old["particles"], int) else ",".join(map(str, old["particles"]))
-        raise MocapInputError(
-            out / RUN_JSON,
-            f"was tracked with {n} particles, and this run's default is {desc['particles']}: resume with "
-            f"--particles {n}",
-        )
+    _check_resolved(out, old, desc)
     if old.get("status") == "complete":
         raise MocapInputError(
             out, "holds a complete run: nothing to resume (--overwrite to track it again, or another --out)"
@@ -276,6 +270,82 @@ def check_out(
             out / export.DIAGNOSTICS_JOURNAL, f"missing: the records of the {rows} frames tracked are gone"
         )
     return ck
+
+
+#: What the options resolved to that shapes a checkpoint or the track continued from it (``run.json`` keys): each
+#: with the option that sets it, or None where no option does (the body measured from the detections, the model's
+#: DOFs, the diffusion of its state): a resumed run must resolve them alike (:func:`check_out`). A key absent from
+#: either run (written by a version that did not record it) is not compared.
+RESOLVED = {
+    "model": "--model",
+    "dof_names": None,
+    "particles": "--particles",
+    "layers": "--layers",
+    "cues": "--cues",
+    "refine": "--refine",
+    "refine_prior": "--refine-prior",
+    "refine_depth": "--refine-depth",
+    "diffusion_std": None,
+    "body_dimensions": None,
+}
+
+
+def _check_resolved(out: pathlib.Path, old: dict, desc: dict) -> None:
+    """Refuse to resume when a default resolved otherwise than in the run being continued (:data:`RESOLVED`;
+    floats within a relative 1e-6, what another CPU's rounding may move): names each with the option that gives
+    the old value back, or says that only ``--overwrite`` can track the folder again."""
+    differ = [k for k in RESOLVED if k in old and k in desc and not _same(old[k], desc[k])]
+    if not differ:
+        return
+    told = ", ".join(
+        f"other {k.replace('_', ' ')}" if RESOLVED[k] is None
+        else f"{k.replace('_', ' ')} {_argument(k, old[k])} (this run: {_argument(k, desc[k])})"
+        for k in differ
+    )  # fmt: skip
+    if any(RESOLVED[k] is None for k in differ):
+        how = "this version cannot continue it: --overwrite to track it again, or another --out"
+    else:
+        how = "resume with " + " ".join(f"{RESOLVED[k]} {_argument(k, old[k])}" for k in differ)
+    raise MocapInputError(
+        out / RUN_JSON, f"was tracked with {told}, where this run's defaults resolve otherwise: {how}"
+    )
+
+
+def _same_options(old_options, options: dict, old: dict) -> bool:
+    """The options of the run being continued and of this run agree: equal, or an option of :data:`RESOLVED` left
+    to its default there (None, ``auto``) and given here as the value it resolved to there (what the refusal of
+    :func:`_check_resolved` asks for: ``--particles 300`` continues a run of the default's 300)."""
+    if not isinstance(old_options, dict):
+        return False
+    for k in set(old_options) | set(options):
+        a, b = old_options.get(k), options.get(k)
+        if _same(a, b):
+            continue
+        if RESOLVED.get(k) and a in (None, "auto") and k in old and _same(b, old[k]):
+            continue
+        return False
+    return True
+
+
+def _same(a, b) -> bool:
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    if isinstance(a, list) and isinstance(b, list):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b, strict=True))
+    if isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool):
+        return a == b or abs(a - b) <= 1e-6 * max(abs(a), abs(b))
+    return a == b
+
+
+def _argument(key: str, value) -> str:
+    """``value`` as the command line takes it for the option of ``key``."""
+    if key == "cues":
+        from jaxmocap.tracking.options import cues_text
+
+        return repr(cues_text(value).replace(" ", ""))
+    if isinstance(value, list):
+        return ",".join(map(str, value))
+    return repr(value) if isinstance(value, float) else str(value)
 
 
 def start_out(out: pathlib.Path, fresh: bool, description: dict) -> None:

@@ -4,6 +4,7 @@ continues from — a missing or foreign file is refused with one message and lef
 
 import json
 import os
+import shlex
 import signal
 import socket
 import subprocess
@@ -59,15 +60,63 @@ def test_a_complete_folder_resumes_from_its_checkpoint(tmp_path):
         run_folder.check_out(out, other, resume=True, overwrite=False)
 
 
-def test_a_default_particle_count_that_changed_is_named_on_resume(tmp_path):
-    """The same options, but the particle count they resolve to differs (a run of 300 particles per layer resumed
-    by a version whose default for the input is 50): refused, with the option that continues it."""
-    desc = {**DESC, "particles": 300}
+def _options(*argv) -> dict:
+    """The options' identity of ``jaxmocap track --resume ARGV`` as the command line parses them."""
+    from jaxmocap import cli
+    from jaxmocap.api import run_options
+
+    args = cli.build_parser().parse_args(["track", "in", "--out", "out", "--resume", *argv])
+    return run_options(cli._track_values(args)).identity()
+
+
+def _suggested(message: str) -> list[str]:
+    return shlex.split(message.split("resume with ", 1)[1])
+
+
+@pytest.mark.parametrize(
+    "then, now",
+    [
+        ({"particles": 300}, {"particles": 50}),  # the four-camera default that changed (300 -> 50)
+        ({"layers": 5, "refine": "track"}, {"layers": 3, "refine": "estimate"}),
+        ({"cues": [["foreground", 1.0], ["coverage", 4.0]], "refine_prior": 1.0},
+         {"cues": [["foreground", 1.0]], "refine_prior": 2.0}),
+    ],
+)  # fmt: skip
+def test_a_default_that_resolves_otherwise_is_named_and_its_option_continues_the_run(tmp_path, then, now):
+    """The same options, but defaults that resolve otherwise (a version whose default for the input moved): refused,
+    naming each with the option that gives the old value back; those options, parsed by the command line, resume
+    the run (the options differ from the old run's only by the values its defaults resolved to)."""
+    desc = {**DESC, "options": _options(), "particles": 300, "layers": 5, **then}
     out = _tracked(tmp_path / "run", desc=desc)
-    with pytest.raises(MocapInputError, match="tracked with 300 particles, and this run's default is 50: resume "
-                       "with --particles 300"):  # fmt: skip
-        run_folder.check_out(out, {**desc, "particles": 50}, resume=True, overwrite=False)
-    assert run_folder.check_out(out, desc, resume=True, overwrite=False) is not None
+    with pytest.raises(
+        MocapInputError, match="where this run's defaults resolve otherwise: resume with --"
+    ) as e:
+        run_folder.check_out(out, {**desc, **now}, resume=True, overwrite=False)
+    for k in then:
+        assert k.replace("_", " ") in str(e.value)
+    argv = _suggested(str(e.value))
+    assert len(argv) == 2 * len(then)
+    ck = run_folder.check_out(out, {**desc, "options": _options(*argv)}, resume=True, overwrite=False)
+    assert int(ck["rows"]) == 5
+    # an option given with another value than the old run resolved stays "other options"
+    with pytest.raises(MocapInputError, match="other options"):
+        run_folder.check_out(
+            out, {**desc, "options": _options("--particles", "299")}, resume=True, overwrite=False
+        )
+
+
+def test_a_body_measured_otherwise_cannot_be_continued(tmp_path):
+    """A resolved value no option sets (the body measured from the detections) refuses the resume with
+    --overwrite; floats that differ by rounding (another CPU) do not."""
+    dims = {"femur": 0.43, "tibia": 0.41}
+    desc = {**DESC, "body_dimensions": dims, "diffusion_std": [0.01, 0.02]}
+    out = _tracked(tmp_path / "run", desc=desc)
+    rounded = {**desc, "body_dimensions": {"femur": 0.43 * (1 + 1e-9), "tibia": 0.41}}
+    assert run_folder.check_out(out, rounded, resume=True, overwrite=False) is not None
+    with pytest.raises(MocapInputError, match="other body dimensions, .*cannot continue it: --overwrite"):
+        run_folder.check_out(
+            out, {**desc, "body_dimensions": {**dims, "femur": 0.45}}, resume=True, overwrite=False
+        )
 
 
 def test_pose_files_that_do_not_cover_the_checkpoint_are_refused(tmp_path):
