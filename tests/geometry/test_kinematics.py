@@ -55,10 +55,11 @@ def test_revolute_twist_rotates_about_its_point():
 def test_gradients_of_exponentials():
     with enable_x64(True):
         w = jnp.asarray([0.3, -0.7, 0.2])
-        check_grads(kinematics.so3_exp, (w,), order=2, modes=["fwd", "rev"])
-        check_grads(kinematics.so3_exp, (jnp.zeros(3),), order=1, modes=["fwd", "rev"])
+        so3_exp, se3_exp = jax.jit(kinematics.so3_exp), jax.jit(kinematics.se3_exp)  # compiled, not op by op
+        check_grads(so3_exp, (w,), order=2, modes=["fwd", "rev"])
+        check_grads(so3_exp, (jnp.zeros(3),), order=1, modes=["fwd", "rev"])
         xi = jnp.asarray([0.1, 0.4, -0.3, 0.3, -0.7, 0.2])
-        check_grads(kinematics.se3_exp, (xi,), order=2, modes=["fwd", "rev"])
+        check_grads(se3_exp, (xi,), order=2, modes=["fwd", "rev"])
 
 
 def _spatial_chain(model, x, segment):
@@ -88,13 +89,17 @@ def test_tree_fk_equals_spatial_product_of_exponentials(name):
     rng = np.random.default_rng(2)
     with enable_x64(True):
         model = body.build(name, dtype=jnp.float64)
+        # both sides compiled once (the same operations as op by op, which dispatches thousands of small programs)
+        tree = jax.jit(lambda x: body.segment_poses(model, x))
+        chains = jax.jit(
+            lambda x: jnp.stack([_spatial_chain(model, x, s) for s in range(model.topology.num_segments)])
+        )
         for _ in range(3):
             x = jnp.asarray(rng.uniform(np.maximum(model.lower, -3.0), np.minimum(model.upper, 3.0)))
-            R, t = body.segment_poses(model, x)
-            for s in range(model.topology.num_segments):
-                g = np.asarray(_spatial_chain(model, x, s))
-                np.testing.assert_allclose(np.asarray(R[s]), g[:3, :3], atol=1e-12)
-                np.testing.assert_allclose(np.asarray(t[s]), g[:3, 3], atol=1e-12)
+            R, t = tree(x)
+            g = np.asarray(chains(x))
+            np.testing.assert_allclose(np.asarray(R), g[:, :3, :3], atol=1e-12)
+            np.testing.assert_allclose(np.asarray(t), g[:, :3, 3], atol=1e-12)
 
 
 def test_tree_fk_against_scipy_composition():
@@ -126,7 +131,7 @@ def test_fk_gradients():
     with enable_x64(True):
         model = body.full25(dtype=jnp.float64)
         x = model.rest_pose + 0.1
-        check_grads(lambda x: body.joint_positions(model, x), (x,), order=1, modes=["fwd", "rev"])
+        check_grads(jax.jit(lambda x: body.joint_positions(model, x)), (x,), order=1, modes=["fwd", "rev"])
 
 
 def test_vmap_over_10000_particles_compiles_once():
