@@ -294,34 +294,49 @@ def _check_resolved(out: pathlib.Path, old: dict, desc: dict) -> None:
     """Refuse to resume when a default resolved otherwise than in the run being continued (:data:`RESOLVED`;
     floats within a relative 1e-6, what another CPU's rounding may move): names each with the option that gives
     the old value back, or says that only ``--overwrite`` can track the folder again."""
-    differ = [k for k in RESOLVED if k in old and k in desc and not _same(old[k], desc[k])]
+    was, now = ({k: _resolved(d, k) for k in RESOLVED} for d in (old, desc))
+    differ = [
+        k for k in RESOLVED if was[k] is not _UNKNOWN and now[k] is not _UNKNOWN and not _same(was[k], now[k])
+    ]
     if not differ:
         return
     told = ", ".join(
         f"other {k.replace('_', ' ')}" if RESOLVED[k] is None
-        else f"{k.replace('_', ' ')} {_argument(k, old[k])} (this run: {_argument(k, desc[k])})"
+        else f"{k.replace('_', ' ')} {_argument(k, was[k])} (this run: {_argument(k, now[k])})"
         for k in differ
     )  # fmt: skip
     if any(RESOLVED[k] is None for k in differ):
         how = "this version cannot continue it: --overwrite to track it again, or another --out"
     else:
-        how = "resume with " + " ".join(f"{RESOLVED[k]} {_argument(k, old[k])}" for k in differ)
+        how = "resume with " + " ".join(f"{RESOLVED[k]} {_argument(k, was[k])}" for k in differ)
     raise MocapInputError(
         out / RUN_JSON, f"was tracked with {told}, where this run's defaults resolve otherwise: {how}"
     )
 
 
+_UNKNOWN = object()
+_DEFAULTS = (None, "auto")
+
+
+def _resolved(desc: dict, key: str):
+    """What ``key`` resolved to in the run of ``desc`` (its ``run.json``): the recorded value, else the option's
+    when it was given explicitly (a version that did not record the resolved value), else unknown."""
+    if key in desc:
+        return desc[key]
+    value = (desc.get("options") or {}).get(key)
+    return _UNKNOWN if value in _DEFAULTS else value
+
+
 def _same_options(old_options, options: dict, old: dict) -> bool:
     """The options of the run being continued and of this run agree: equal, or an option of :data:`RESOLVED` left
-    to its default there (None, ``auto``) and given here as the value it resolved to there (what the refusal of
-    :func:`_check_resolved` asks for: ``--particles 300`` continues a run of the default's 300)."""
+    to its default (None, ``auto``) in either run, where the old run recorded what it resolved to: those values
+    :func:`_check_resolved` compares (so that the refusal's ``--particles 300`` continues a run of the default's
+    300)."""
     if not isinstance(old_options, dict):
         return False
     for k in set(old_options) | set(options):
         a, b = old_options.get(k), options.get(k)
-        if _same(a, b):
-            continue
-        if RESOLVED.get(k) and a in (None, "auto") and k in old and _same(b, old[k]):
+        if _same(a, b) or (RESOLVED.get(k) and (a in _DEFAULTS or b in _DEFAULTS) and k in old):
             continue
         return False
     return True

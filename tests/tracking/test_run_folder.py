@@ -98,10 +98,22 @@ def test_a_default_that_resolves_otherwise_is_named_and_its_option_continues_the
     assert len(argv) == 2 * len(then)
     ck = run_folder.check_out(out, {**desc, "options": _options(*argv)}, resume=True, overwrite=False)
     assert int(ck["rows"]) == 5
-    # an option given with another value than the old run resolved stays "other options"
+    # an option given with another value than the old run's default resolved to is named the same way
+    with pytest.raises(MocapInputError, match="resume with --particles 300"):
+        run_folder.check_out(
+            out,
+            {**desc, "options": _options("--particles", "299"), "particles": 299},
+            resume=True,
+            overwrite=False,
+        )
+    # a run that did not record what its defaults resolved to: an option given now is another option
+    legacy = _tracked(tmp_path / "legacy", desc={**DESC, "options": _options()})
     with pytest.raises(MocapInputError, match="other options"):
         run_folder.check_out(
-            out, {**desc, "options": _options("--particles", "299")}, resume=True, overwrite=False
+            legacy,
+            {**DESC, "options": _options("--particles", "300"), "particles": 300},
+            resume=True,
+            overwrite=False,
         )
 
 
