@@ -20,6 +20,7 @@ from jaxmocap.geometry import body, camera
 from jaxmocap.tracking import init as init_mod
 from jaxmocap.tracking.refine import (
     DEPTH_JOINTS_DEFAULT,
+    DEPTH_OCCLUDED_M,
     DEPTH_TRUNK,
     REFINE_ROBUST_PX,
     KeypointRefiner,
@@ -208,25 +209,35 @@ def _opencv_depth_maps(rig, X, joints, half=4, size=(320, 240), behind=None):
     return maps
 
 
-def test_depth_targets_read_a_plane_at_the_joints_projections(scene):
-    """A fronto-parallel plane at camera depth 3.7 m in every view, with a hole around the thorax's projection in
-    view 0: each joint of the depth term (:data:`DEPTH_JOINTS_DEFAULT`: trunk and limbs) gets 3.7 m plus its
-    distance behind the surface as its target, at weight ``1/σ_d²``; the thorax in view 0 and the other joints
-    (the root, the head) have weight 0."""
+@pytest.mark.parametrize("plane", [4.2, 3.7])
+def test_depth_targets_read_a_plane_at_the_joints_projections(scene, plane):
+    """A fronto-parallel plane at camera depth ``plane`` in every view, with a hole around the thorax's projection
+    in view 0: each joint of the depth term (:data:`DEPTH_JOINTS_DEFAULT`: trunk and limbs) gets the plane's depth
+    plus its distance behind the surface as its target, at weight ``1/σ_d²``, unless the estimate puts it more than
+    :data:`DEPTH_OCCLUDED_M` behind that target (occluded by the plane: its camera depth from OpenCV's ``R X + t``);
+    the thorax in view 0 and the other joints (the root, the head) have weight 0. The nearer plane occludes some
+    joints in some views, the farther none."""
     model, rig, x, X, kp, pairs = scene
     sigma = 0.05
     refiner = KeypointRefiner(model, rig, pairs, 3.0, 1.0, "estimate", depth_sigma=sigma)
-    depth = np.full((4, 240, 320), 3.7, np.float32)
+    depth = np.full((4, 240, 320), plane, np.float32)
     uv = np.asarray(camera.project(rig, jnp.asarray(X, jnp.float32)))
     thorax = model.joint_names.index("thorax")
     c, r = (int(round(a)) for a in uv[0, thorax])
     depth[0, r - 3 : r + 4, c - 3 : c + 4] = 0.0
     z, wz = (np.asarray(a) for a in refiner.depth_targets(jnp.asarray(x, jnp.float32), jnp.asarray(depth)))
     expected_w, expected_z = np.zeros_like(wz), np.zeros_like(z)
-    for j, behind in DEPTH_JOINTS_DEFAULT:
-        expected_w[:, model.joint_names.index(j)] = 1.0 / sigma**2
-        expected_z[:, model.joint_names.index(j)] = 3.7 + behind
+    for v in range(rig.num_views):
+        zc = X @ np.asarray(rig.R[v], np.float64)[2] + float(
+            rig.t[v][2]
+        )  # camera depths, OpenCV's convention
+        for j, behind in DEPTH_JOINTS_DEFAULT:
+            k = model.joint_names.index(j)
+            if zc[k] - (plane + behind) <= DEPTH_OCCLUDED_M:
+                expected_w[v, k], expected_z[v, k] = 1.0 / sigma**2, plane + behind
     expected_w[0, thorax] = expected_z[0, thorax] = 0.0
+    occluded = int(np.sum(expected_w == 0)) - 2 * 4 - 1  # besides the root and head of every view, the hole
+    assert occluded == 0 if plane == 4.2 else occluded > 0
     assert {j for j, _ in DEPTH_JOINTS_DEFAULT} == set(model.joint_names) - {"root", "head"}
     np.testing.assert_allclose(wz, expected_w, rtol=1e-6)
     np.testing.assert_allclose(z, expected_z, rtol=1e-6)
@@ -280,13 +291,16 @@ def test_without_depth_maps_the_depth_term_is_left_out(scene):
     np.testing.assert_array_equal(np.asarray(out[0].estimate), np.asarray(out[1].estimate))
 
 
-def test_the_depth_reweighting_discounts_a_wrong_reading(scene):
+@pytest.mark.parametrize("wrong", [1.0, -0.5])
+def test_the_depth_reweighting_discounts_a_wrong_reading(scene, wrong):
     """Exact detections in the stereo pair of :func:`test_the_depth_term_holds_a_stereo_fit_at_the_measured_depth`,
-    depth maps read at the true surface of every joint of the depth term, but view 0 reads the left wrist 0.5 m in
-    front of it (a bystander's arm, the other hand): from the true pose, the fit without the reweighting pulls the
-    wrist towards that reading (measured 17 cm); with it (``robust_px`` set: the depth term's Geman–McClure weights
-    at :data:`REFINE_ROBUST_DEPTH`) the wrist stays within 5 cm (measured 3.1 cm), at least three times nearer.
-    (The maps' patches overlap where joints project close together, as a sensor's readings of one surface would.)"""
+    depth maps read at the true surface of every joint of the depth term, but view 0 reads the left wrist
+    ``wrong`` off. 1 m behind it (the wall through a gap): from the true pose, the fit without the reweighting
+    pulls the wrist towards that reading (by more than 3× the reweighted fit's error); with it (``robust_px`` set:
+    the depth term's Geman–McClure weights at :data:`REFINE_ROBUST_DEPTH`) the wrist stays within 5 cm. 0.5 m in
+    front of it (a bystander's arm, the other hand): the wrist lies more than :data:`DEPTH_OCCLUDED_M` behind the
+    reading, is taken as occluded in that view and stays within 5 cm with and without the reweighting. (The maps'
+    patches overlap where joints project close together, as a sensor's readings of one surface would.)"""
     model, _, x, X, _, pairs = scene
     rig = _pair(X[0]).to_jax(jnp.float32)
     uv = np.asarray(camera.project(rig, jnp.asarray(X, jnp.float32)))
@@ -297,7 +311,7 @@ def test_the_depth_reweighting_discounts_a_wrong_reading(scene):
     depth = _opencv_depth_maps(rig, X, joints, half=2, behind=[b for _, b in DEPTH_JOINTS_DEFAULT])
     wrist = model.joint_names.index("left_wrist")
     c, r = (int(round(a)) for a in uv[0, wrist])
-    depth[0, r - 2 : r + 3, c - 2 : c + 3] -= 0.5
+    depth[0, r - 2 : r + 3, c - 2 : c + 3] += wrong
     est = x.astype(np.float32)
     state = State(jnp.asarray(est[None]), jnp.zeros(1), jnp.asarray(est))
     errs = {}
@@ -308,4 +322,7 @@ def test_the_depth_reweighting_discounts_a_wrong_reading(scene):
         _, info = refiner(state, _Info(jnp.asarray(est)), _Obs(jnp.asarray(kp), depth))
         errs[robust] = _joints_error(model, info.estimate, X)[wrist]
     assert errs[REFINE_ROBUST_PX] < 0.05, errs
-    assert errs[None] > 3.0 * errs[REFINE_ROBUST_PX], errs
+    if wrong > 0:
+        assert errs[None] > 3.0 * errs[REFINE_ROBUST_PX], errs
+    else:
+        assert errs[None] < 0.05, errs
