@@ -29,9 +29,10 @@ and ankles 0.05 m), ``ω_vj = 1/σ_d²`` and ``ρ^z`` the same Geman–McClure r
 :data:`REFINE_ROBUST_DEPTH` (a reading of something in front of the joint, an arm before the chest, is
 discounted). A joint that the estimate puts more than :data:`DEPTH_OCCLUDED_M` behind its target is taken as
 occluded in that view (a leg behind the other one, the map seeing the nearer leg) and left out of the term there:
-read at its pixel, the nearer surface would pull it forward onto the occluder, the two legs swapped in depth. A stereo pair's detections fix a joint's distance along the rays only through a pixel or two of
-disparity and the skeleton's projected size (which a wrongly measured body turns into a wrong distance); the depth
-maps fix it directly.
+read at its pixel, the nearer surface would pull it forward onto the occluder, the two legs swapped in depth. A
+stereo pair's detections fix a joint's distance along the rays only through a pixel or two of disparity and the
+skeleton's projected size (which a wrongly measured body turns into a wrong distance); the depth maps fix it
+directly.
 
 ``refine = "estimate"`` writes ``x*`` (outputs, velocity prediction, track-loss reference) and leaves the particles;
 ``"track"`` also moves every particle by ``x* − x̂`` (kept inside the joint limits), so that the next frame's search

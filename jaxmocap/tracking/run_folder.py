@@ -274,8 +274,9 @@ def check_out(
 
 #: What the options resolved to that shapes a checkpoint or the track continued from it (``run.json`` keys): each
 #: with the option that sets it, or None where no option does (the body measured from the detections, the model's
-#: DOFs, the diffusion of its state): a resumed run must resolve them alike (:func:`check_out`). A key absent from
-#: either run (written by a version that did not record it) is not compared.
+#: DOFs, the diffusion of its state): a resumed run must resolve them alike (:func:`check_out`). A key that a run's
+#: ``run.json`` lacks (written by a version that did not record it) stands for the option given explicitly, else
+#: it is not compared.
 RESOLVED = {
     "model": "--model",
     "dof_names": None,

@@ -228,9 +228,8 @@ def test_depth_targets_read_a_plane_at_the_joints_projections(scene, plane):
     z, wz = (np.asarray(a) for a in refiner.depth_targets(jnp.asarray(x, jnp.float32), jnp.asarray(depth)))
     expected_w, expected_z = np.zeros_like(wz), np.zeros_like(z)
     for v in range(rig.num_views):
-        zc = X @ np.asarray(rig.R[v], np.float64)[2] + float(
-            rig.t[v][2]
-        )  # camera depths, OpenCV's convention
+        # camera depths, OpenCV's convention
+        zc = X @ np.asarray(rig.R[v], np.float64)[2] + float(rig.t[v][2])
         for j, behind in DEPTH_JOINTS_DEFAULT:
             k = model.joint_names.index(j)
             if zc[k] - (plane + behind) <= DEPTH_OCCLUDED_M:
@@ -295,7 +294,7 @@ def test_without_depth_maps_the_depth_term_is_left_out(scene):
 def test_the_depth_reweighting_discounts_a_wrong_reading(scene, wrong):
     """Exact detections in the stereo pair of :func:`test_the_depth_term_holds_a_stereo_fit_at_the_measured_depth`,
     depth maps read at the true surface of every joint of the depth term, but view 0 reads the left wrist
-    ``wrong`` off. 1 m behind it (the wall through a gap): from the true pose, the fit without the reweighting
+    ``wrong`` metres off. 1 m behind it (the wall through a gap): from the true pose, the fit without the reweighting
     pulls the wrist towards that reading (by more than 3× the reweighted fit's error); with it (``robust_px`` set:
     the depth term's Geman–McClure weights at :data:`REFINE_ROBUST_DEPTH`) the wrist stays within 5 cm. 0.5 m in
     front of it (a bystander's arm, the other hand): the wrist lies more than :data:`DEPTH_OCCLUDED_M` behind the
