@@ -33,8 +33,9 @@ such a cylinder (an implausible particle) is the sampling sparser than bodytrack
 **Speed.** :func:`log_likelihood_batch` evaluates particles ``(N, 31)`` with the particle axis last in every
 intermediate array, where XLA on CPU vectorises the per-sample arithmetic (with ``vmap``'s leading batch axis it
 does not: several times slower). Inside a loop iteration every sample is a separate elementwise step accumulating
-into one packed integer counter per lane (no reduction ops, which XLA on CPU materialises), and the pixel reads
-promise in-bounds indices (a masked sample reads pixel 0); XLA compiles a loop iteration into one fused kernel.
+into one packed integer counter per lane (no reduction ops, which XLA on CPU materialises), the pixel index is
+computed exactly in float32 without a conversion (:func:`_index`), and the pixel reads promise in-bounds indices (a
+masked sample reads pixel 0); XLA compiles a loop iteration into one fused kernel.
 The loop lengths are reduced once before each loop, and the sphere test uses its static sphere counts
 (:func:`_static_sphere_counts`, NumPy only, so that they stay concrete inside ``jit``). On an x86 CPU without
 AVX-512 the programs that evaluate it are compiled with XLA's loop fusion emitter
@@ -286,6 +287,29 @@ def corners(shape: BodyShape, cams: Cameras, x: jnp.ndarray) -> tuple[jnp.ndarra
 # version of this code on another CPU), and the running parameters ``t`` are accumulated in float32 exactly as
 # bodytrack does.
 
+#: 2**23. A float32 that holds an integer ``k`` in ``[2**23, 2**24)`` has ``k − 2**23`` as its 23 mantissa bits, so
+#: ``bits(k) − bits(2**23)`` is ``k − 2**23`` as an integer: a float-to-integer conversion by one integer subtraction.
+_MAGIC = float(2**23)
+_MAGIC_BITS = 0x4B000000  # the bits of float32 2**23
+
+
+def _exact_float_index(V: int, W: int, H: int) -> bool:
+    """Whether every flat pixel index of ``V`` maps of ``W × H`` stays below ``2**23`` (a float32 holds it exactly
+    after :data:`_MAGIC` is added): up to 27 cameras at 640×480, 4 at 1920×1080."""
+    return V * W * H < 2**23
+
+
+def _offsets(V: int, W: int, H: int, like: jnp.ndarray) -> jnp.ndarray:
+    """Per-lane start of each camera's map in the flat maps, shaped like ``like (V, ...)``: float32 with
+    :data:`_MAGIC` added where :func:`_exact_float_index`, else int32. A full array, so that nothing is broadcast
+    inside the sampling loops."""
+    nb = like.ndim - 1
+    if _exact_float_index(V, W, H):
+        start = jnp.arange(V, dtype=jnp.float32) * float(W * H) + _MAGIC
+    else:
+        start = jnp.arange(V, dtype=jnp.int32) * (W * H)
+    return _trail(start, nb) + jnp.zeros(like.shape, start.dtype)
+
 
 def _count(length: jnp.ndarray, step: float, cap: int) -> tuple[jnp.ndarray, jnp.ndarray]:
     """``n = max(int(length/step + 0.5), 4)`` capped, as float; and whether the length was finite."""
@@ -296,14 +320,29 @@ def _count(length: jnp.ndarray, step: float, cap: int) -> tuple[jnp.ndarray, jnp
 
 
 def _index(x, y, offset, W: int, H: int, active):
-    """Flat pixel index (int32) and counted mask of samples ``(x, y)`` (float32): ``int(x + 0.5)`` truncates
-    toward 0, so a sample counts iff ``−1 < x + 0.5 < W`` and ``−1 < y + 0.5 < H``, that is iff the truncated
-    column and row lie in ``[0, W)`` and ``[0, H)``: one unsigned comparison each (a negative one wraps to a huge
-    unsigned value; a float out of the int32 range converts to the minimum or maximum int32, outside too)."""
-    xi = (x + 0.5).astype(jnp.int32)
-    yi = (y + 0.5).astype(jnp.int32)
-    m = active & (xi.astype(jnp.uint32) < W) & (yi.astype(jnp.uint32) < H)
-    return jnp.where(m, offset.astype(jnp.int32) + yi * W + xi, 0), m
+    """Flat pixel index (uint32) and counted mask of samples ``(x, y)`` (float32).
+
+    bodytrack reads pixel ``(int(x + 0.5), int(y + 0.5))``, truncating toward 0, and counts the sample iff that
+    column and row lie in ``[0, W)`` and ``[0, H)``, that is iff ``−1 < x + 0.5 < W`` and ``−1 < y + 0.5 < H``
+    (tested on the floats: a NaN never counts, like the C++'s out-of-range conversion). Where it counts,
+    ``int(u) = floor(max(u, 0))``, and the flat index ``floor(y')·W + floor(x') + offset`` is an integer below
+    ``2**23`` computed exactly in float32; with :data:`_MAGIC` in ``offset`` its bits minus :data:`_MAGIC_BITS`
+    are the index (:func:`_offsets`). XLA's float-to-integer conversion saturates and maps NaN to 0, six vector
+    instructions a coordinate on x86: this path takes the likelihood from 4.0 to 3.5 µs of CPU per particle
+    (``benchmarks/perf/bench_parsec.py --against``). Maps too large for it (:func:`_exact_float_index`) convert.
+    Unsigned indices spare the gather JAX's wrap-around of negative ones; a sample not counted reads pixel 0.
+    """
+    u = x + 0.5
+    v = y + 0.5
+    m = active & (u > -1.0) & (u < W) & (v > -1.0) & (v < H)
+    if offset.dtype == jnp.float32:
+        f = jnp.floor(jnp.maximum(v, 0.0)) * W + jnp.floor(jnp.maximum(u, 0.0)) + offset
+        idx = jax.lax.bitcast_convert_type(f, jnp.uint32) - jnp.uint32(_MAGIC_BITS)
+    else:
+        idx = (
+            offset + jnp.maximum(v, 0.0).astype(jnp.int32) * W + jnp.maximum(u, 0.0).astype(jnp.int32)
+        ).astype(jnp.uint32)
+    return jnp.where(m, idx, jnp.uint32(0)), m
 
 
 def _gather(flat, idx_masks):
@@ -315,7 +354,6 @@ def _edge_group(uv, flat_edge, config: Config, W: int, H: int, C: int):
     """Edge term of one part group: ``uv (V, g, 4, 2, *B)`` float32 → per-lane SSD and counts ``(V, g, 2, *B)``;
     ``C`` samples per lane and loop iteration."""
     V = uv.shape[0]
-    nb = uv.ndim - 4
     p = jnp.stack([uv[:, :, 0], uv[:, :, 2]], 2)  # (V, g, 2 sides, 2 xy, *B): sides P0→P1 and P2→P3
     q = jnp.stack([uv[:, :, 1], uv[:, :, 3]], 2)
     px, py = p[:, :, :, 0], p[:, :, :, 1]
@@ -324,8 +362,7 @@ def _edge_group(uv, flat_edge, config: Config, W: int, H: int, C: int):
     n, finite = _count(jnp.sqrt(sx * sx + sy * sy), config.edge_step, config.max_edge_n)
     d = 1.0 / n
     count = jnp.where(finite, n + 1.0, 0.0)
-    offset = jnp.broadcast_to(_trail(jnp.arange(V, dtype=uv.dtype) * (W * H), nb + 2), px.shape)
-    offset = offset + jnp.zeros_like(px)  # a full array: no broadcast inside the loop
+    offset = _offsets(V, W, H, px)
 
     # one uint32 accumulator per lane, SSD in the high bits and the sample count in the low 8 bits, when a side
     # has at most 255 samples (640×480: 161); two int32 accumulators otherwise
@@ -366,7 +403,6 @@ def _inside_group(uv, flat_fg, config: Config, W: int, H: int, C2: int):
     samples of a row (a row of ``n2`` samples takes ``ceil(n2 / C2)`` blocks).
     """
     V = uv.shape[0]
-    nb = uv.ndim - 4
     p1x, p1y = uv[:, :, 0, 0], uv[:, :, 0, 1]
     p2x, p2y = uv[:, :, 3, 0], uv[:, :, 3, 1]
     s1x, s1y = uv[:, :, 1, 0] - p1x, uv[:, :, 1, 1] - p1y
@@ -379,8 +415,7 @@ def _inside_group(uv, flat_fg, config: Config, W: int, H: int, C2: int):
     d2 = 1.0 / n2
     rows = jnp.where(f1 & f2, n1 + 1.0, 0.0)
     blocks = jnp.ceil(n2 / C2)  # blocks per row
-    offset = jnp.broadcast_to(_trail(jnp.arange(V, dtype=uv.dtype) * (W * H), nb + 1), p1x.shape)
-    offset = offset + jnp.zeros_like(p1x)  # a full array: no broadcast inside the loop
+    offset = _offsets(V, W, H, p1x)
 
     def body_fn(carry):
         k, r, col, delta1, delta2, acc = carry

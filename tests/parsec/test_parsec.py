@@ -466,6 +466,35 @@ def test_sampling_closed_form(corners_fn, edge_step):
     assert ne[0, 0] == k and ni[0, 0] == 33  # the P0→P1 side and the x0 column are out
 
 
+@pytest.mark.parametrize("exact_float", [True, False])
+def test_pixel_index_is_c_truncation(monkeypatch, exact_float):
+    """Both ways of computing a sample's flat pixel index (float arithmetic below 2**23, used for PARSEC's maps,
+    and the integer conversion for larger maps) read C's pixel: ``int(x + 0.5)`` truncated toward zero, counted
+    only inside the image; NaN and ±inf never count, and a sample not counted reads pixel 0."""
+    # the float path is exact while every index stays below 2**23
+    fits = pl._exact_float_index
+    assert fits(27, 640, 480) and not fits(28, 640, 480) and fits(4, 1920, 1080) and not fits(5, 1920, 1080)
+    monkeypatch.setattr(pl, "_exact_float_index", lambda V, W, H: exact_float)
+    V, W, H = 3, 640, 480
+    edge = [-2.0, -1.5, -1.5000001, -1.4999999, -0.5, -0.50000006, 0.0, 0.49999997, 0.5, 1.3, 318.7]
+    edge += [478.5, 479.49997, 479.5, 638.5, 639.49997, 639.5, 640.0, 1e9, -1e9, np.inf, -np.inf, np.nan]
+    vals = np.asarray(edge, np.float32)
+    x, y = (np.broadcast_to(a.ravel(), (V, vals.size**2)) for a in np.meshgrid(vals, vals))
+    offset = pl._offsets(V, W, H, jnp.zeros(x.shape, jnp.float32))
+    assert offset.dtype == (jnp.float32 if exact_float else jnp.int32)
+    idx, m = (
+        np.asarray(a) for a in pl._index(jnp.asarray(x), jnp.asarray(y), offset, W, H, jnp.asarray(True))
+    )
+    with np.errstate(invalid="ignore"):
+        col, row = np.trunc(x + np.float32(0.5)), np.trunc(y + np.float32(0.5))
+        inside = (col >= 0) & (col < W) & (row >= 0) & (row < H)
+    col, row = np.where(inside, col, 0), np.where(inside, row, 0)
+    expected = np.where(inside, np.arange(V)[:, None] * W * H + row * W + col, 0)
+    np.testing.assert_array_equal(m, inside)
+    np.testing.assert_array_equal(idx, expected.astype(np.uint32))
+    assert inside.sum() == V * 12 * 10  # 12 of the values are columns of the image, 10 are rows
+
+
 def test_edge_chunks_change_the_work_not_the_sums(pdata, corners_fn, probe_corners):
     """The edge loop's samples per iteration (one for all groups, or one per group, the default) change only how
     many masked slots are visited: the per-part sums of the probe states are equal to the integer."""
