@@ -213,7 +213,7 @@ SCRIPTS: dict[str, Script] = {
     "parsec_latency": Script(
         "First-frame latency of the PARSEC run, warm and cold, against bodytrack and a revision",
         "perf/parsec_latency.py",
-        "--rounds 5 --against 268d9f4 --out benchmarks/results/parsec_latency.md",
+        "--rounds 5 --against fa263e4 --out benchmarks/results/parsec_latency.md",
         writes=("parsec_latency.md",),
         env="JAX_PLATFORMS=cpu",
         slow=True,
