@@ -46,6 +46,7 @@ See ``benchmarks/perf/bench_parsec.py`` and ``benchmarks/perf/instructions.py``.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Callable
 from typing import NamedTuple
@@ -522,6 +523,19 @@ def _total(a: jnp.ndarray, nb: int) -> jnp.ndarray:
 # The likelihood
 
 
+def _on_its_own(fn: Callable, x: jnp.ndarray, *args):
+    """``fn(*args)`` compiled as a computation of its own: the one branch taken of a conditional whose two
+    branches are ``fn``, on a predicate XLA cannot fold (``x₀ == x₀``, false only for a NaN, where the other, equal
+    branch runs). XLA fuses element-wise producers into their consumer and drops ``lax.optimization_barrier`` on
+    the CPU; a conditional's branch is a boundary it keeps. Used for the sphere test, about 400 operations per
+    particle that XLA otherwise fused into the likelihood's last kernel of some 1500 operations, which runs far
+    slower per operation than a small loop does (the likelihood 1.05–1.08× faster per core with it on its own:
+    ``benchmarks/perf/bench_parsec.py --against``). Batched (under ``vmap``) both branches would run: use it
+    only where ``x`` is the batch itself."""
+    first = x.reshape(-1)[0]
+    return jax.lax.cond(first == first, fn, fn, *args)
+
+
 def _terms(shape: BodyShape, cams: Cameras, obs: Observation, x: jnp.ndarray, config: Config) -> Terms:
     """:class:`Terms` of states ``x (31, *B)``, batch axes trailing (the hot path)."""
     nb = x.ndim - 1
@@ -531,7 +545,9 @@ def _terms(shape: BodyShape, cams: Cameras, obs: Observation, x: jnp.ndarray, co
     edge_err = edge_ssd / (255.0 * 255.0) / jnp.maximum(n_edge, 1.0)
     inside_err = background / jnp.maximum(n_inside, 1.0)
     ll = -(edge_err + inside_err)
-    valid = _valid_from_frames(shape, A, t) & (n_edge > 0) & (n_inside > 0) & jnp.isfinite(ll)
+    spheres = functools.partial(_valid_from_frames, shape)
+    geometry = _on_its_own(spheres, x, A, t) if nb else spheres(A, t)
+    valid = geometry & (n_edge > 0) & (n_inside > 0) & jnp.isfinite(ll)
     ll = jnp.where(valid, ll.astype(x.dtype), jnp.asarray(INVALID, x.dtype))
     return Terms(ll, edge_err, inside_err, valid, n_edge, n_inside)
 
