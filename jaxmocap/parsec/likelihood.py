@@ -37,7 +37,8 @@ into one packed integer counter per lane (no reduction ops, which XLA on CPU mat
 computed exactly in float32 without a conversion (:func:`_index`), and the pixel reads promise in-bounds indices (a
 masked sample reads pixel 0); XLA compiles a loop iteration into one fused kernel.
 The loop lengths are reduced once before each loop, and the sphere test uses its static sphere counts
-(:func:`_static_sphere_counts`, NumPy only, so that they stay concrete inside ``jit``). On an x86 CPU without
+(:func:`_static_sphere_counts`, NumPy only, so that they stay concrete inside ``jit``) and is compiled as a
+computation of its own (:func:`_on_its_own`). On an x86 CPU without
 AVX-512 the programs that evaluate it are compiled with XLA's loop fusion emitter
 (:func:`jaxmocap.host.loop_fusion_options`: 1.7× there; :func:`jit_loglik_batch`, the PARSEC tracker's step).
 See ``benchmarks/perf/bench_parsec.py`` and ``benchmarks/perf/instructions.py``.
