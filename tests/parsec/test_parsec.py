@@ -530,11 +530,9 @@ def test_intersecting_parts_are_invalid(pdata, loglik_fn):
     ll = np.asarray(loglik_fn(jnp.asarray(X), _obs(pdata, 0)))
     assert np.all(ll[~concrete] == pl.INVALID)
     assert np.all((ll[concrete] > -2.0) & (ll[concrete] < 0.0))
-    # the batch evaluates the sphere test as a computation of its own (a conditional's branch), the single state
-    # inline; both give these flags
+    # the batch evaluated the sphere test above as a computation of its own (a conditional's branch), where
+    # geometry_valid runs it inline: the same flags
     assert "stablehlo.case" in loglik_fn.lower(jnp.asarray(X), _obs(pdata, 0)).as_text()
-    single = jax.jit(jax.vmap(lambda x: pl.likelihood_terms(shape, pdata["cams"], _obs(pdata, 0), x).valid))
-    np.testing.assert_array_equal(np.asarray(single(jnp.asarray(X))), concrete)
 
 
 def test_sphere_counts_stay_static_under_jit(pdata):
