@@ -33,14 +33,16 @@ such a cylinder (an implausible particle) is the sampling sparser than bodytrack
 **Speed.** :func:`log_likelihood_batch` evaluates particles ``(N, 31)`` with the particle axis last in every
 intermediate array, where XLA on CPU vectorises the per-sample arithmetic (with ``vmap``'s leading batch axis it
 does not: several times slower). Inside a loop iteration every sample is a separate elementwise step accumulating
-into one packed integer counter per lane (no reduction ops, which XLA on CPU materialises), the pixel index is
-computed exactly in float32 without a conversion (:func:`_index`), and the pixel reads promise in-bounds indices (a
-masked sample reads pixel 0); XLA compiles a loop iteration into one fused kernel.
-The loop lengths are reduced once before each loop, and the sphere test uses its static sphere counts
-(:func:`_static_sphere_counts`, NumPy only, so that they stay concrete inside ``jit``) and is compiled as a
-computation of its own (:func:`_on_its_own`). On an x86 CPU without
-AVX-512 the programs that evaluate it are compiled with XLA's loop fusion emitter
-(:func:`jaxmocap.host.loop_fusion_options`: 1.7× there; :func:`jit_loglik_batch`, the PARSEC tracker's step).
+into one packed integer counter per lane (no reduction ops, which XLA on CPU materialises); the lanes' counters are
+summed into four integers per particle carried by the scan over part groups (no per-part array is stacked: 1.05×,
+and the edge sum is exact before its one rounding to float32). The pixel index is computed exactly in float32
+without a conversion (:func:`_index`), and the pixel reads promise in-bounds indices (a masked sample reads pixel
+0); XLA compiles a loop iteration into one fused kernel. The loop lengths are reduced once before each loop, and
+the sphere test uses its static sphere counts (:func:`_static_sphere_counts`, NumPy only, so that they stay
+concrete inside ``jit``) and is compiled as a computation of its own (:func:`_on_its_own`). The programs that
+evaluate it (:func:`jit_loglik_batch`, the PARSEC tracker's step) are compiled with
+:func:`jaxmocap.host.particle_options`: copy insertion with region analysis (fewer copies of the loops' carried
+arrays) and, on an x86 CPU without AVX-512, XLA's loop fusion emitter (1.7× there).
 See ``benchmarks/perf/bench_parsec.py`` and ``benchmarks/perf/instructions.py``.
 """
 
@@ -326,19 +328,20 @@ def _index(x, y, offset, W: int, H: int, active):
 
     bodytrack reads pixel ``(int(x + 0.5), int(y + 0.5))``, truncating toward 0, and counts the sample iff that
     column and row lie in ``[0, W)`` and ``[0, H)``, that is iff ``−1 < x + 0.5 < W`` and ``−1 < y + 0.5 < H``
-    (tested on the floats: a NaN never counts, like the C++'s out-of-range conversion). Where it counts,
-    ``int(u) = floor(max(u, 0))``, and the flat index ``floor(y')·W + floor(x') + offset`` is an integer below
+    (tested on the floats: a NaN never counts, like the C++'s out-of-range conversion). Where it counts (``u >
+    −1``), ``int(u) = floor(|u|)``, and the flat index ``floor(|v|)·W + floor(|u|) + offset`` is an integer below
     ``2**23`` computed exactly in float32; with :data:`_MAGIC` in ``offset`` its bits minus :data:`_MAGIC_BITS`
     are the index (:func:`_offsets`). XLA's float-to-integer conversion saturates and maps NaN to 0, six vector
     instructions a coordinate on x86: this path takes the likelihood from 4.0 to 3.5 µs of CPU per particle
-    (``benchmarks/perf/bench_parsec.py --against``). Maps too large for it (:func:`_exact_float_index`) convert.
+    (``benchmarks/perf/bench_parsec.py --against``); ``|u|`` (one AND) instead of XLA's NaN-propagating ``max(u,
+    0)`` (up to three instructions) another 1.5 %. Maps too large for it (:func:`_exact_float_index`) convert.
     Unsigned indices spare the gather JAX's wrap-around of negative ones; a sample not counted reads pixel 0.
     """
     u = x + 0.5
     v = y + 0.5
     m = active & (u > -1.0) & (u < W) & (v > -1.0) & (v < H)
-    if offset.dtype == jnp.float32:
-        f = jnp.floor(jnp.maximum(v, 0.0)) * W + jnp.floor(jnp.maximum(u, 0.0)) + offset
+    if offset.dtype == jnp.float32:  # a sample not counted gets some index here, masked below
+        f = jnp.floor(jnp.abs(v)) * W + jnp.floor(jnp.abs(u)) + offset
         idx = jax.lax.bitcast_convert_type(f, jnp.uint32) - jnp.uint32(_MAGIC_BITS)
     else:
         idx = (
@@ -353,8 +356,8 @@ def _gather(flat, idx_masks):
 
 
 def _edge_group(uv, flat_edge, config: Config, W: int, H: int, C: int):
-    """Edge term of one part group: ``uv (V, g, 4, 2, *B)`` float32 → per-lane SSD and counts ``(V, g, 2, *B)``;
-    ``C`` samples per lane and loop iteration."""
+    """Edge term of one part group: ``uv (V, g, 4, 2, *B)`` float32 → per-lane SSD and counts ``(V, g, 2, *B)``
+    (integers: uint32, or int32 for sides of more than 255 samples); ``C`` samples per lane and loop iteration."""
     V = uv.shape[0]
     p = jnp.stack([uv[:, :, 0], uv[:, :, 2]], 2)  # (V, g, 2 sides, 2 xy, *B): sides P0→P1 and P2→P3
     q = jnp.stack([uv[:, :, 1], uv[:, :, 3]], 2)
@@ -393,13 +396,13 @@ def _edge_group(uv, flat_edge, config: Config, W: int, H: int, C: int):
     acc0 = jnp.zeros(px.shape, jnp.uint32) if packed else (jnp.zeros(px.shape, jnp.int32),) * 2
     acc = jax.lax.while_loop(cond_fn, body_fn, (jnp.zeros((), uv.dtype), zeros, acc0))[2]
     if packed:
-        return (acc >> 8).astype(uv.dtype), (acc & 255).astype(uv.dtype)
-    return acc[0].astype(uv.dtype), acc[1].astype(uv.dtype)
+        return acc >> 8, acc & 255
+    return acc
 
 
 def _inside_group(uv, flat_fg, config: Config, W: int, H: int, C2: int):
     """Inside term of one part group: ``uv (V, g, 4, 2, *B)`` float32 → background and sample counts ``(V, g,
-    *B)``.
+    *B)`` (uint32).
 
     One loop iteration visits ``config.inside_rows`` (row, block) steps per lane; a block is ``C2`` consecutive
     samples of a row (a row of ``n2`` samples takes ``ceil(n2 / C2)`` blocks).
@@ -461,13 +464,18 @@ def _inside_group(uv, flat_fg, config: Config, W: int, H: int, C2: int):
     zeros = jnp.zeros_like(p1x)
     init = (jnp.zeros((), uv.dtype), zeros, zeros, zeros, zeros, jnp.zeros(p1x.shape, jnp.uint32))
     acc = jax.lax.while_loop(cond_fn, body_fn, init)[-1]
-    return (acc >> 16).astype(uv.dtype), (acc & 65535).astype(uv.dtype)
+    return acc >> 16, acc & 65535
 
 
-def _group_sums(uv: jnp.ndarray, obs: Observation, config: Config):
+def _group_sums(uv: jnp.ndarray, obs: Observation, config: Config, totals: bool = False):
     """Per part: edge SSD and counts ``(10, V, 2, *B)`` (two sides), background and inside counts ``(10, V,
-    *B)``. Groups of equal size, ``chunk`` and ``inside_cols`` run in one compiled loop per term, scanned over
-    them."""
+    *B)``, float32. Groups of equal size, ``chunk`` and ``inside_cols`` run in one compiled loop per term, scanned
+    over them.
+
+    With ``totals`` the four sums over all cameras and parts instead, ``B``-shaped float32: summed as integers in
+    the scan's carry (exact where :func:`_exact_totals`, else in float32), so that no per-part array is stacked
+    (the stacked outputs cost zero-filled buffers of ``G·V·g·2·B`` each).
+    """
     uv = jnp.asarray(uv, jnp.float32)
     V, H, W = obs.edge.shape
     if (W, H) != tuple(config.image_size):
@@ -478,21 +486,38 @@ def _group_sums(uv: jnp.ndarray, obs: Observation, config: Config):
     buckets: dict[tuple[int, int], list] = {}
     for g, c, c2 in zip(config.groups, config.chunks, config.inside_cols, strict=True):
         buckets.setdefault((len(g), c, c2), []).append(g)
+    nb = uv.ndim - 4
+    dt = jnp.uint32 if _exact_totals(config, V) else jnp.float32  # of the totals
+    sums = (jnp.zeros(uv.shape[4:], dt),) * 4
     per_part = [None] * NUM_PARTS
     for (_, c, c2), groups in buckets.items():
         stacked = jnp.stack([uv[:, np.asarray(g)] for g in groups])  # (G, V, g, 4, 2, *B)
 
-        def one(_, u, c=c, c2=c2):
-            return None, (
+        def one(carry, u, c=c, c2=c2):
+            lanes = (
                 *_edge_group(u, flat_edge, config, W, H, c),
                 *_inside_group(u, flat_fg, config, W, H, c2),
             )
+            if not totals:
+                return None, tuple(a.astype(jnp.float32) for a in lanes)
+            return tuple(s + _total(a.astype(dt), nb) for s, a in zip(carry, lanes, strict=True)), None
 
+        if totals:
+            sums = jax.lax.scan(one, sums, stacked)[0]
+            continue
         _, (err, cnt, bg, ni) = jax.lax.scan(one, None, stacked)
         for k, g in enumerate(groups):
             for j, part in enumerate(g):
                 per_part[part] = (err[k, :, j], cnt[k, :, j], bg[k, :, j], ni[k, :, j])
+    if totals:
+        return tuple(s.astype(jnp.float32) for s in sums)
     return tuple(jnp.stack([p[i] for p in per_part]) for i in range(4))
+
+
+def _exact_totals(config: Config, V: int) -> bool:
+    """Whether the edge SSD of every sample of ``V`` cameras fits a uint32: ``V · 10 parts · 2 sides ·
+    (max_edge_n + 1) · 255²`` below ``2**32`` (up to 20 cameras at 640×480)."""
+    return V * NUM_PARTS * 2 * (config.max_edge_n + 1) * 255 * 255 < 2**32
 
 
 def terms_from_corners(uv: jnp.ndarray, obs: Observation, config: Config = Config()):
@@ -542,7 +567,7 @@ def _terms(shape: BodyShape, cams: Cameras, obs: Observation, x: jnp.ndarray, co
     nb = x.ndim - 1
     A, t = cylinders._cylinder_frames(shape, x)
     uv = cylinders._corners(shape, cams, A, t)
-    edge_ssd, n_edge, background, n_inside = (_total(a, nb) for a in _group_sums(uv, obs, config))
+    edge_ssd, n_edge, background, n_inside = _group_sums(uv, obs, config, totals=True)
     edge_err = edge_ssd / (255.0 * 255.0) / jnp.maximum(n_edge, 1.0)
     inside_err = background / jnp.maximum(n_inside, 1.0)
     ll = -(edge_err + inside_err)
@@ -603,6 +628,6 @@ def make_loglik_batch(shape: BodyShape, cams: Cameras, config: Config = Config()
 
 
 def jit_loglik_batch(shape: BodyShape, cams: Cameras, config: Config = Config()) -> Callable:
-    """:func:`make_loglik_batch` jitted with this CPU's options for it (:func:`jaxmocap.host.loop_fusion_options`):
+    """:func:`make_loglik_batch` jitted with this CPU's options for it (:func:`jaxmocap.host.particle_options`):
     ``f(X (N, 31), observation) -> (N,)``."""
-    return jax.jit(make_loglik_batch(shape, cams, config), compiler_options=host.loop_fusion_options())
+    return jax.jit(make_loglik_batch(shape, cams, config), compiler_options=host.particle_options())

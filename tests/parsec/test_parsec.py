@@ -423,7 +423,9 @@ def test_likelihood_matches_bodytrack(pdata, loglik_fn, corners_fn, probe_corner
         np.testing.assert_allclose([edge, inside], ref[:2], atol=2e-7)
 
 
-def test_single_particle_function_agrees_with_the_batch(pdata, loglik_fn):
+def test_single_particle_function_agrees_with_the_batch(pdata, loglik_fn, corners_fn):
+    """The single-state terms equal the batch's log-likelihood, and their totals (summed as integers in the scan
+    over part groups) the per-camera, per-part sums of :func:`terms_from_corners`."""
     obs = _obs(pdata, 0)
     X = _eight(pdata)
     ll = np.asarray(loglik_fn(X, obs))
@@ -433,6 +435,13 @@ def test_single_particle_function_agrees_with_the_batch(pdata, loglik_fn):
         assert bool(t.valid) and float(t.loglik) == ll[i]
         assert float(t.loglik) == pytest.approx(-(float(t.edge_error) + float(t.inside_error)), abs=1e-7)
         assert 800 < float(t.edge_samples) < 1000 and 1000 < float(t.inside_samples) < 1200
+        ssd, ne, bg, ni = (
+            np.asarray(a, np.int64)
+            for a in corners_fn(pl.corners(pdata["shape"], pdata["cams"], X[i])[1], obs)
+        )
+        assert (float(t.edge_samples), float(t.inside_samples)) == (ne.sum(), ni.sum())
+        assert float(t.edge_error) == pytest.approx(ssd.sum() / 255.0**2 / ne.sum(), rel=1e-6)
+        assert float(t.inside_error) == pytest.approx(bg.sum() / ni.sum(), rel=1e-6)
     # a new frame does not recompile
     n = loglik_fn._cache_size()
     loglik_fn(X, _obs(pdata, 1))
