@@ -142,7 +142,7 @@ class Tracker:
         x0 = jnp.asarray(seq.initial_pose, jnp.float32)
         loglik = ptrack.make_loglik(seq.shape, seq.cameras)  # bodytrack drops invalid poses (−1e10)
         filt = parsec_apf(loglik, std, particles, layers)
-        options = host.loop_fusion_options()  # the options ``jaxmocap track`` compiles PARSEC's step with
+        options = host.particle_options()  # the options ``jaxmocap track`` compiles PARSEC's step with
         self._start = jax.jit(
             lambda k, o: ptrack.weighted_start(filt, loglik, k, x0, std, o), compiler_options=options
         )

@@ -9,8 +9,9 @@ Speed figures are only comparable between runs on the same :func:`description`.
   ``"SSE"``), or the architecture's name elsewhere (``"aarch64"``).
 * :func:`description` — ``"AMD EPYC (family 25, model 1; AVX2, no AVX-512)"``: the model name, the x86 family and
   model numbers (they tell two CPUs of one marketing name apart) and :func:`vector_isa`.
-* :func:`loop_fusion_options` — the XLA compiler options of a program that runs faster with XLA's loop fusion
-  emitter than with its default fusion emitters on a CPU without AVX-512 (PARSEC's likelihood).
+* :func:`particle_options` — the XLA compiler options of a gather-bound particle program (PARSEC's likelihood and
+  tracker step): copy insertion with region analysis, and XLA's loop fusion emitter instead of its default fusion
+  emitters on a CPU without AVX-512.
 
 Both read ``/proc/cpuinfo`` once (Linux); elsewhere they fall back to :mod:`platform`.
 """
@@ -22,10 +23,13 @@ import os
 import pathlib
 import platform
 
-__all__ = ["LOOP_FUSION", "description", "loop_fusion_options", "vector_isa"]
+__all__ = ["COPY_REGIONS", "LOOP_FUSION", "description", "particle_options", "vector_isa"]
 
 #: XLA's CPU compiler option that selects its loop fusion emitter instead of the fusion emitters (its default).
 LOOP_FUSION = {"xla_cpu_use_fusion_emitters": False}
+
+#: XLA's CPU compiler option that runs copy insertion with region analysis (fewer copies of loop-carried arrays).
+COPY_REGIONS = {"xla_cpu_copy_insertion_use_region_analysis": True}
 
 
 @functools.lru_cache(maxsize=1)
@@ -74,26 +78,39 @@ def description() -> str:
     return f"{name} ({'; '.join(parts + [isa])})"
 
 
-def loop_fusion_options() -> dict[str, bool]:
-    """Compiler options (``jax.jit(..., compiler_options=...)``) for a gather-bound particle program:
-    :data:`LOOP_FUSION` when JAX compiles for an x86 CPU without AVX-512, ``{}`` (XLA's default) elsewhere (an
-    accelerator, another CPU) or when ``XLA_FLAGS`` names ``xla_cpu_use_fusion_emitters`` (the user's choice wins).
+def particle_options() -> dict[str, bool]:
+    """Compiler options (``jax.jit(..., compiler_options=...)``) for a gather-bound particle program (PARSEC's
+    likelihood and tracker step) compiled for XLA's CPU backend: :data:`COPY_REGIONS` on every CPU, with
+    :data:`LOOP_FUSION` on an x86 CPU without AVX-512; ``{}`` for an accelerator. An option that ``XLA_FLAGS``
+    names is left out (the user's choice wins).
 
-    Why: on an AVX2 CPU (AMD EPYC, family 25, model 1), XLA's fusion emitters turn PARSEC's per-sample edge loops
-    (a pixel index, an unsigned bounds test and a one-byte gather per sample, :mod:`jaxmocap.parsec.likelihood`)
-    into scalar code of ≈ 190 k instructions per particle and layer (``valgrind --tool=callgrind``,
-    ``benchmarks/perf/instructions.py``; 210 k before the in-bounds pixel reads, about 1.6 instructions per cycle
-    at the CPU's nominal 2.45 GHz); the loop fusion emitter's code, 171 k instructions, ran the likelihood 1.69×
-    faster in one process (``bench_parsec.py --xla-options xla_cpu_use_fusion_emitters=false``, five interleaved
-    rounds, 2026-11-29) and the whole PARSEC tracker at 4000 × 5 1.7× faster (``vs_bodytrack.py``). The same
-    switch made the default tracker's step (other cues, other loops) slower on that CPU (stereo 11.5–13.3 against
-    14.2 frames/s, four cameras 6.4–7.6 against 9.6, ``track_rate.py`` in separate processes), so it is a choice
-    per program, not per process. Elsewhere the default is kept: on an AMD EPYC with AVX-512 (family 25, model 17)
-    the loop emitter ran the PARSEC likelihood at 0.37× the default (the same command, seven interleaved rounds,
-    2026-11-29 21:56 UTC: 6.97 against 2.57 µs per particle), as the fast runs of 2026-11-22/25 had found for an
-    earlier version (0.24×)."""
+    Why :data:`COPY_REGIONS`: the annealing layers and the likelihood's sampling loops are ``while`` loops whose
+    carried arrays XLA's copy insertion copies every iteration when it cannot prove a copy unneeded; with its
+    region analysis it proves more. Bit-identical results; on an AMD EPYC with AVX-512 (family 25, model 17) the
+    PARSEC likelihood ran 1.05× faster on one thread (``bench_parsec.py --xla-options
+    xla_cpu_copy_insertion_use_region_analysis=true --pool-threads 1``, seven interleaved rounds, 2026-11-30) and
+    the PARSEC tracker's step at 4000 × 5 1.24× faster (1.16× beside a busy process; five interleaved rounds in
+    one process).
+
+    Why :data:`LOOP_FUSION`: on an AVX2 CPU (AMD EPYC, family 25, model 1), XLA's fusion emitters turn PARSEC's
+    per-sample edge loops (a pixel index, an unsigned bounds test and a one-byte gather per sample,
+    :mod:`jaxmocap.parsec.likelihood`) into scalar code of ≈ 190 k instructions per particle and layer
+    (``valgrind --tool=callgrind``, ``benchmarks/perf/instructions.py``; 210 k before the in-bounds pixel reads,
+    about 1.6 instructions per cycle at the CPU's nominal 2.45 GHz); the loop fusion emitter's code, 171 k
+    instructions, ran the likelihood 1.69× faster in one process (``bench_parsec.py --xla-options
+    xla_cpu_use_fusion_emitters=false``, five interleaved rounds, 2026-11-29) and the whole PARSEC tracker at 4000
+    × 5 1.7× faster (``vs_bodytrack.py``). The same switch made the default tracker's step (other cues, other
+    loops) slower on that CPU (stereo 11.5–13.3 against 14.2 frames/s, four cameras 6.4–7.6 against 9.6,
+    ``track_rate.py`` in separate processes), so it is a choice per program, not per process. Elsewhere XLA's
+    emitters are kept: on an AMD EPYC with AVX-512 (family 25, model 17) the loop emitter ran the PARSEC
+    likelihood at 0.37× the default (the same command, seven interleaved rounds, 2026-11-29 21:56 UTC: 6.97
+    against 2.57 µs per particle), as the fast runs of 2026-11-22/25 had found for an earlier version (0.24×)."""
     import jax
 
-    if jax.default_backend() != "cpu" or "xla_cpu_use_fusion_emitters" in os.environ.get("XLA_FLAGS", ""):
-        return {}  # programs compiled for an accelerator, or the user's choice
-    return dict(LOOP_FUSION) if vector_isa() in ("AVX2", "AVX", "SSE") else {}
+    if jax.default_backend() != "cpu":
+        return {}  # programs compiled for an accelerator
+    options = dict(COPY_REGIONS)
+    if vector_isa() in ("AVX2", "AVX", "SSE"):
+        options.update(LOOP_FUSION)
+    flags = os.environ.get("XLA_FLAGS", "")
+    return {name: value for name, value in options.items() if name not in flags}

@@ -4,6 +4,7 @@ written ``/proc/cpuinfo`` texts."""
 import shutil
 import subprocess
 
+import numpy as np
 import pytest
 
 from jaxmocap import host
@@ -75,19 +76,20 @@ def test_this_machine_as_lscpu_reads_it():
 @pytest.mark.parametrize(
     ("isa", "xla_flags", "expected"),
     [
-        ("AVX2", "", host.LOOP_FUSION),
-        ("AVX", "--xla_force_host_platform_device_count=2", host.LOOP_FUSION),
-        ("AVX-512", "", {}),
-        ("aarch64", "", {}),
-        ("AVX2", "--xla_cpu_use_fusion_emitters=true", {}),  # the user's XLA_FLAGS decide
+        ("AVX2", "", {**host.COPY_REGIONS, **host.LOOP_FUSION}),
+        ("AVX", "--xla_force_host_platform_device_count=2", {**host.COPY_REGIONS, **host.LOOP_FUSION}),
+        ("AVX-512", "", host.COPY_REGIONS),
+        ("aarch64", "", host.COPY_REGIONS),
+        ("AVX2", "--xla_cpu_use_fusion_emitters=true", host.COPY_REGIONS),  # the user's XLA_FLAGS decide
+        ("AVX-512", "--xla_cpu_copy_insertion_use_region_analysis=false", {}),
     ],
 )
-def test_loop_fusion_is_chosen_on_x86_without_avx512_unless_xla_flags_say(
+def test_particle_options_loop_fusion_on_x86_without_avx512_unless_xla_flags_say(
     monkeypatch, isa, xla_flags, expected
 ):
     monkeypatch.setattr(host, "vector_isa", lambda: isa)
     monkeypatch.setenv("XLA_FLAGS", xla_flags)
-    assert host.loop_fusion_options() == expected
+    assert host.particle_options() == expected
 
 
 def test_no_cpu_option_for_programs_compiled_for_an_accelerator(monkeypatch):
@@ -96,4 +98,26 @@ def test_no_cpu_option_for_programs_compiled_for_an_accelerator(monkeypatch):
     monkeypatch.setattr(host, "vector_isa", lambda: "AVX2")
     monkeypatch.delenv("XLA_FLAGS", raising=False)
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
-    assert host.loop_fusion_options() == {}
+    assert host.particle_options() == {}
+
+
+def test_particle_options_compile_a_while_loop_to_the_same_values(monkeypatch):
+    """This XLA accepts every option (an unknown one is an error at compile time) and they change no value: a
+    while loop carrying arrays that it updates from one another (the kind of loop copy insertion copies)."""
+    import jax
+    import jax.numpy as jnp
+
+    monkeypatch.delenv("XLA_FLAGS", raising=False)
+
+    def f(x):
+        def body(c):
+            k, a, b = c
+            return k + 1, jnp.where(a > b, a - b, b) * 1.5, a + jnp.sin(b)
+
+        return jax.lax.while_loop(lambda c: c[0] < 7, body, (0, x, x[::-1]))
+
+    x = jnp.linspace(-2.0, 3.0, 64, dtype=jnp.float32)
+    ref = jax.jit(f)(x)
+    out = jax.jit(f, compiler_options=host.particle_options())(x)
+    for a, b in zip(ref, out, strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))

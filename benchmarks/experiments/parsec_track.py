@@ -245,7 +245,7 @@ def main(argv=None) -> int:
         f"## Time per frame, side by side with bodytrack ({common.stamp()})\n\n"
         f"bodytrack built from `{bodytrack.SRC}` (g++ -O2) and run by this script; jaxmocap on JAX {jax.__version__} "
         f"({dev.platform}), XLA_FLAGS=`{os.environ.get('XLA_FLAGS', '')}`, compiler options "
-        f"{host.loop_fusion_options() or 'XLA defaults'}; {os.cpu_count()} cores ({host.description()}). "
+        f"{host.particle_options() or 'XLA defaults'}; {os.cpu_count()} cores ({host.description()}). "
         f"{a.rounds} rounds; per frame: bodytrack's interval between its frame lines, ours the host maps + the "
         "compiled filter step (seed 0, after compilation), median over the 2 frames.\n\n"
         + bodytrack.table(rows)

@@ -20,7 +20,7 @@ for the whole tracker.
 from the process's affinity mask: the mask is narrowed while the backend starts and restored after).
 
 The likelihood is compiled as the PARSEC tracker compiles it (:func:`jaxmocap.parsec.likelihood.jit_loglik_batch`,
-with :func:`jaxmocap.host.loop_fusion_options`; the header prints them). ``--xla-options NAME=VALUE ...`` compiles
+with :func:`jaxmocap.host.particle_options`; the header prints them). ``--xla-options NAME=VALUE ...`` compiles
 the likelihood with XLA's defaults and once more per option (XLA debug options passed to
 ``compile(compiler_options=...)``, e.g. ``xla_cpu_prefer_vector_width=512``) and times each against the defaults
 in the same process, ``--ab-rounds`` interleaved rounds (the order alternating), with the largest
@@ -185,7 +185,7 @@ def main(args):
         mesh = Mesh(np.array(jax.devices()[: args.devices]), ("p",))
         f = jax.jit(
             jax.shard_map(ll_fn, mesh=mesh, in_specs=(P("p"), P()), out_specs=P("p"), check_vma=False),
-            compiler_options=host.loop_fusion_options(),
+            compiler_options=host.particle_options(),
         )
         Xj = jax.device_put(Xj, NamedSharding(mesh, P("p")))
         obs = jax.device_put(obs, NamedSharding(mesh, P()))
@@ -211,7 +211,7 @@ def main(args):
         f"  devices: {jax.devices()[: args.devices]}, cores visible: {os.cpu_count()}, XLA intra-op threads: {pool}, "
         f"load average: {os.getloadavg()}"
     )
-    print(f"  CPU: {host.description()}; XLA options: {host.loop_fusion_options() or 'defaults'}")
+    print(f"  CPU: {host.description()}; XLA options: {host.particle_options() or 'defaults'}")
     print(f"  JAX    compile+first run {compile_s:.1f} s")
     print(
         f"  JAX    µs/particle/layer: median {us(med):.2f}  min {us(best):.2f}  (process CPU {us(cpu):.2f})"
@@ -240,7 +240,7 @@ def main(args):
         ab_table(progs, Xj, obs, args.ab_rounds, "Edge samples per loop iteration (Config.chunk)")
     if args.against:
         at = likelihood_at(args.against)
-        options = host.loop_fusion_options()
+        options = host.particle_options()
         progs = {
             args.against: jax.jit(at.make_loglik_batch(shape, cams), compiler_options=options),
             "this checkout": f,

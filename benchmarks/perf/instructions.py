@@ -163,7 +163,7 @@ def main(argv=None):
             options = VARIANTS[name]
             print(f"jaxmocap {name}", flush=True)
             count, mean_ll = jaxmocap_count(options, a.particles, a.calls, work)
-            label = (host.loop_fusion_options() or "XLA defaults") if options is None else options
+            label = (host.particle_options() or "XLA defaults") if options is None else options
             rows.append((f"jaxmocap `{name}` ({label})", count / evals, mean_ll))
     if any(per <= 0 for _, per, _ in rows):
         sys.exit("a count is zero: valgrind did not apply the instrumentation request (raise SETTLE)")

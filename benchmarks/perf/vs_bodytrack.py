@@ -164,7 +164,7 @@ def to_markdown(rows: list[dict], particles: int, repeats: int) -> str:
     head = (
         f"bodytrack built from `{bt.SRC}` (g++ -O2, serial); jaxmocap on JAX {jax.__version__} "
         f"({jax.devices()[0].platform}), XLA_FLAGS=`{os.environ.get('XLA_FLAGS', '')}`, compiler options "
-        f"{host.loop_fusion_options() or 'XLA defaults'}; {os.cpu_count()} cores ({host.description()}); "
+        f"{host.particle_options() or 'XLA defaults'}; {os.cpu_count()} cores ({host.description()}); "
         f"{common.stamp()}. Likelihood: {particles} particles, median of {repeats} calls each side."
     )
     return head + "\n\n" + bt.table(rows)

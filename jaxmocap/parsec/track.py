@@ -207,8 +207,8 @@ class ParsecSetup:
         return f"parsec31 apf {self.num_particles}x{self.layers} {h.hexdigest()}"
 
     def compiler_options(self) -> dict:
-        """XLA's options for the run's step: the likelihood's (:func:`jaxmocap.host.loop_fusion_options`)."""
-        return host.loop_fusion_options()
+        """XLA's options for the run's step: the likelihood's (:func:`jaxmocap.host.particle_options`)."""
+        return host.particle_options()
 
     def detection(self, fd, masks, last_good):
         return None

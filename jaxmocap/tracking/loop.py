@@ -189,7 +189,7 @@ class TrackingLoop:
         # ``stored_programs.use`` (the command line, ``jaxmocap.track``) the traced step is kept on disk under
         # the setup's ``program_tag`` — what the step closes over besides its arguments — and the arguments'
         # structure (:mod:`jaxmocap.stored_programs`); a setup without a tag traces every run. A setup may name
-        # XLA's options for its step (``compiler_options``: PARSEC's, :func:`jaxmocap.host.loop_fusion_options`)
+        # XLA's options for its step (``compiler_options``: PARSEC's, :func:`jaxmocap.host.particle_options`)
         tag, options = (getattr(self.setup, name, None) for name in ("program_tag", "compiler_options"))
         self._jitted = self._step = StoredJit(
             step,

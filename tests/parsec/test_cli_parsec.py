@@ -169,7 +169,7 @@ def test_a_second_run_reads_its_programs_back(tmp_path):
         assert proc.returncode == 0, proc.stderr[-3000:]
         summary = json.loads((tmp_path / name / "diagnostics.json").read_text())["summary"]
         # PARSEC's step compiled with this CPU's options for its likelihood, recorded beside the CPU
-        assert (summary["xla_options"], summary["cpu"]) == (host.loop_fusion_options(), host.description())
+        assert (summary["xla_options"], summary["cpu"]) == (host.particle_options(), host.description())
         return export.load_poses(tmp_path / name)["state"], (summary["step_traces"], summary["compilations"])
 
     first, n1 = run("first", str(cache))
