@@ -133,7 +133,6 @@ class Tracker:
 
         if package is None:  # this checkout's; or another revision's (``common.package_at``)
             import jaxmocap as package
-        host = importlib.import_module(f"{package.__name__}.host")
         ptrack = importlib.import_module(f"{package.__name__}.parsec.track")
         parsec_apf = importlib.import_module(f"{package.__name__}.parsec.annealing").parsec_apf
 
@@ -142,7 +141,9 @@ class Tracker:
         x0 = jnp.asarray(seq.initial_pose, jnp.float32)
         loglik = ptrack.make_loglik(seq.shape, seq.cameras)  # bodytrack drops invalid poses (−1e10)
         filt = parsec_apf(loglik, std, particles, layers)
-        options = host.particle_options()  # the options ``jaxmocap track`` compiles PARSEC's step with
+        options = common.particle_options_of(
+            ptrack
+        )  # the options its ``jaxmocap track`` compiles the step with
         self._start = jax.jit(
             lambda k, o: ptrack.weighted_start(filt, loglik, k, x0, std, o), compiler_options=options
         )

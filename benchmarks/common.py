@@ -144,6 +144,15 @@ def package_at(rev: str, module: str):
         sys.path.remove(str(root))
 
 
+def particle_options_of(module) -> dict:
+    """The XLA options that the package holding ``module`` (this checkout's or :func:`package_at`'s) compiles
+    PARSEC's programs with: its ``host.particle_options()``, or ``host.loop_fusion_options()`` before 2026-11-30."""
+    import importlib
+
+    host = importlib.import_module(module.__name__.split(".")[0] + ".host")
+    return (getattr(host, "particle_options", None) or host.loop_fusion_options)()
+
+
 def checkout_at(rev: str, into: pathlib.Path) -> pathlib.Path:
     """``jaxmocap/`` of git revision ``rev`` extracted into ``into``; returns ``into``."""
     import subprocess

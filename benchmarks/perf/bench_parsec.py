@@ -240,7 +240,7 @@ def main(args):
         ab_table(progs, Xj, obs, args.ab_rounds, "Edge samples per loop iteration (Config.chunk)")
     if args.against:
         at = likelihood_at(args.against)
-        options = host.particle_options()
+        options = common.particle_options_of(at)  # the options that revision compiles it with
         progs = {
             args.against: jax.jit(at.make_loglik_batch(shape, cams), compiler_options=options),
             "this checkout": f,
