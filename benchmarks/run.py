@@ -197,7 +197,7 @@ SCRIPTS: dict[str, Script] = {
     "vs_bodytrack": Script(
         "jaxmocap vs PARSEC bodytrack built from source: likelihood and tracker, interleaved, idle and loaded",
         "perf/vs_bodytrack.py",
-        "--rounds 5 --against fa263e4 --out benchmarks/results/vs_bodytrack.md",
+        "--rounds 5 --against 9ca9ca5 --out benchmarks/results/vs_bodytrack.md",
         writes=("vs_bodytrack.md",),
     ),
     "instructions": Script(
@@ -213,7 +213,7 @@ SCRIPTS: dict[str, Script] = {
     "parsec_latency": Script(
         "First-frame latency of the PARSEC run, warm and cold, against bodytrack and a revision",
         "perf/parsec_latency.py",
-        "--rounds 5 --against fa263e4 --out benchmarks/results/parsec_latency.md",
+        "--rounds 5 --against 9ca9ca5 --out benchmarks/results/parsec_latency.md",
         writes=("parsec_latency.md",),
         env="JAX_PLATFORMS=cpu",
         slow=True,
