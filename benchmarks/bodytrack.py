@@ -141,9 +141,8 @@ class Tracker:
         x0 = jnp.asarray(seq.initial_pose, jnp.float32)
         loglik = ptrack.make_loglik(seq.shape, seq.cameras)  # bodytrack drops invalid poses (−1e10)
         filt = parsec_apf(loglik, std, particles, layers)
-        options = common.particle_options_of(
-            ptrack
-        )  # the options its ``jaxmocap track`` compiles the step with
+        # the options the package's own ``jaxmocap track`` compiles the step with
+        options = common.particle_options_of(ptrack)
         self._start = jax.jit(
             lambda k, o: ptrack.weighted_start(filt, loglik, k, x0, std, o), compiler_options=options
         )

@@ -685,6 +685,13 @@ def build_parser() -> argparse.ArgumentParser:
         prog="jaxmocap", description="Markerless motion capture with particle filters in JAX."
     )
     p.add_argument("--version", action="version", version=f"jaxmocap {__version__}")
+    p.add_argument(
+        "--cpu-threads",
+        type=_positive_int,
+        default=None,
+        metavar="N",
+        help="XLA's CPU threads (default: one per core); 1 is steadier where other work shares the cores",
+    )
     sub = p.add_subparsers(dest="command", required=True)
     calib = sub.add_parser("calib", help="inspect and convert camera calibrations")
     csub = calib.add_subparsers(dest="calib_command", required=True)
@@ -727,8 +734,18 @@ def main(argv=None) -> int:
             return interrupts.exit_status(e)
 
 
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
 def _main(argv) -> int:
     args = build_parser().parse_args(argv)
+    from jaxmocap import host
+
+    host.limit_cpu_threads(args.cpu_threads)  # before anything starts JAX's backends
     import jaxmocap.parsec  # noqa: F401  (the PARSEC wing registers the parsec31 body and the .cal camera reader)
     from jaxmocap import compilation_cache, stored_programs
 

@@ -12,8 +12,10 @@ Speed figures are only comparable between runs on the same :func:`description`.
 * :func:`particle_options` — the XLA compiler options of a gather-bound particle program (PARSEC's likelihood and
   tracker step): copy insertion with region analysis, and XLA's loop fusion emitter instead of its default fusion
   emitters on a CPU without AVX-512.
+* :func:`limit_cpu_threads` — start XLA's CPU backend with fewer intra-op threads than cores, and
+  :func:`cpu_threads`, how many it has.
 
-Both read ``/proc/cpuinfo`` once (Linux); elsewhere they fall back to :mod:`platform`.
+:func:`vector_isa` and :func:`description` read ``/proc/cpuinfo`` once (Linux); elsewhere they fall back to :mod:`platform`.
 """
 
 from __future__ import annotations
@@ -23,7 +25,15 @@ import os
 import pathlib
 import platform
 
-__all__ = ["COPY_REGIONS", "LOOP_FUSION", "description", "particle_options", "vector_isa"]
+__all__ = [
+    "COPY_REGIONS",
+    "LOOP_FUSION",
+    "cpu_threads",
+    "description",
+    "limit_cpu_threads",
+    "particle_options",
+    "vector_isa",
+]
 
 #: XLA's CPU compiler option that selects its loop fusion emitter instead of the fusion emitters (its default).
 LOOP_FUSION = {"xla_cpu_use_fusion_emitters": False}
@@ -114,3 +124,52 @@ def particle_options() -> dict[str, bool]:
         options.update(LOOP_FUSION)
     flags = os.environ.get("XLA_FLAGS", "")
     return {name: value for name, value in options.items() if name not in flags}
+
+
+#: the name the operating system shows for a thread of XLA's CPU intra-op pool (Eigen's)
+_POOL_THREAD = "tf_XLAEigen"
+
+
+def cpu_threads() -> int | None:
+    """The threads of XLA's CPU intra-op pool in this process (Linux, from ``/proc/self/task``; ``None``
+    elsewhere). XLA starts them with its CPU backend, one per CPU of the process's affinity mask."""
+    tasks = pathlib.Path("/proc/self/task")
+    if not tasks.is_dir():
+        return None
+    count = 0
+    for t in tasks.iterdir():
+        try:
+            count += (t / "comm").read_text().strip() == _POOL_THREAD
+        except OSError:  # a thread that ended meanwhile
+            continue
+    return count
+
+
+def limit_cpu_threads(n: int | None) -> None:
+    """Start JAX's CPU backend with ``n`` intra-op threads (``None`` or 0: XLA's own choice, one per core).
+
+    XLA sizes its pool from the CPUs the process may run on when the backend starts, so the affinity mask is
+    narrowed to ``n`` CPUs while it starts and restored right after: the threads then run on any core. Why fewer:
+    on a machine whose other cores are busy, XLA's threads wait for each other at the end of every parallel
+    kernel; on the shared 2-core machine of ``benchmarks/RESULTS.md`` (item 1) one thread ran the PARSEC step
+    in 65–69 ms in every condition, two threads in 46–109 ms idle and 57–89 ms beside a busy process.
+    Must run before anything starts JAX's backends (the first array or ``jax.devices()``); Linux only."""
+    if not n:
+        return
+    if n < 0:
+        raise ValueError(f"the number of CPU threads must be positive, got {n}")
+    import jax
+    from jax._src import xla_bridge
+
+    if xla_bridge.backends_are_initialized():
+        raise RuntimeError("JAX's backends have started: XLA's CPU thread count can no longer be chosen")
+    if not hasattr(os, "sched_setaffinity"):
+        raise OSError("choosing XLA's CPU thread count needs sched_setaffinity (Linux)")
+    allowed = os.sched_getaffinity(0)
+    if n >= len(allowed):
+        return  # XLA's default already
+    os.sched_setaffinity(0, set(sorted(allowed)[:n]))
+    try:
+        jax.devices("cpu")
+    finally:
+        os.sched_setaffinity(0, allowed)

@@ -1,8 +1,11 @@
 """The host CPU's description against util-linux's ``lscpu`` (its own parser of the same kernel interface) and on
-written ``/proc/cpuinfo`` texts."""
+written ``/proc/cpuinfo`` texts; XLA's compiler options per CPU; XLA's CPU thread pool as the kernel lists its
+threads."""
 
+import os
 import shutil
 import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -121,3 +124,33 @@ def test_particle_options_compile_a_while_loop_to_the_same_values(monkeypatch):
     out = jax.jit(f, compiler_options=host.particle_options())(x)
     for a, b in zip(ref, out, strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+@pytest.mark.parametrize("threads", [None, 1])
+def test_limit_cpu_threads_sizes_xlas_pool(threads):
+    """In a new process (the command line imported first, which must not start JAX's backends): XLA's intra-op
+    pool has one thread per CPU of the affinity mask, or the number asked for; the mask is restored."""
+    code = (
+        "import os, sys; import jaxmocap.cli; from jaxmocap import host; mask = os.sched_getaffinity(0); "
+        f"host.limit_cpu_threads({threads}); import jax.numpy as jnp; x = jnp.ones((256, 256)); "
+        "(x @ x + jnp.sin(x)).block_until_ready(); "
+        "print(host.cpu_threads(), len(mask), os.sched_getaffinity(0) == mask)"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, env=dict(os.environ)
+    ).stdout.split()
+    pool, cpus, restored = int(out[0]), int(out[1]), out[2]
+    assert pool == (threads or cpus) and restored == "True"
+
+
+def test_cpu_threads_are_chosen_before_the_backends_start():
+    import jax.numpy as jnp
+
+    jnp.zeros(1).block_until_ready()  # this process's backends have started
+    with pytest.raises(RuntimeError, match="backends have started"):
+        host.limit_cpu_threads(1)
+    host.limit_cpu_threads(None)  # no choice made: nothing to refuse
+    with pytest.raises(SystemExit):  # the command line takes a positive count only
+        __import__("jaxmocap.cli", fromlist=["build_parser"]).build_parser().parse_args(
+            ["--cpu-threads", "0", "demo"]
+        )

@@ -150,7 +150,8 @@ def test_parsec_rejects_other_filters(tmp_path, capsys):
 def test_a_second_run_reads_its_programs_back(tmp_path):
     """With the compilation cache on, the first run stores its traced weighted start and filter step
     (jaxmocap.stored_programs) and a second process calls them without tracing the step (``step_traces`` 0, one
-    step program all the same): the same poses bit for bit, and the same as a run with the cache off."""
+    step program all the same): the same poses bit for bit, and the same as a run with the cache off, which runs
+    XLA's CPU backend on one thread (``jaxmocap --cpu-threads 1``: the summary counts its pool's threads)."""
     import os
     import subprocess
     import sys
@@ -160,8 +161,11 @@ def test_a_second_run_reads_its_programs_back(tmp_path):
     env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
     env["JAX_PLATFORMS"] = "cpu"
 
-    def run(name, cache_dir):
-        cmd = [sys.executable, "-m", "jaxmocap.cli", "track", str(tmp_path / "in"), "--particles", "50"]
+    def run(name, cache_dir, threads=None):
+        cmd = [sys.executable, "-m", "jaxmocap.cli"] + (
+            [] if threads is None else ["--cpu-threads", str(threads)]
+        )
+        cmd += ["track", str(tmp_path / "in"), "--particles", "50"]
         cmd += ["--layers", "1", "--frames", "0:1", "--out", str(tmp_path / name), "--quiet"]
         proc = subprocess.run(
             cmd, env=dict(env, JAXMOCAP_CACHE_DIR=cache_dir), capture_output=True, text=True, timeout=600
@@ -170,6 +174,8 @@ def test_a_second_run_reads_its_programs_back(tmp_path):
         summary = json.loads((tmp_path / name / "diagnostics.json").read_text())["summary"]
         # PARSEC's step compiled with this CPU's options for its likelihood, recorded beside the CPU
         assert (summary["xla_options"], summary["cpu"]) == (host.particle_options(), host.description())
+        # XLA's pool: one thread per CPU the process may use, unless --cpu-threads says fewer
+        assert summary["xla_cpu_threads"] == (threads or len(os.sched_getaffinity(0)))
         return export.load_poses(tmp_path / name)["state"], (summary["step_traces"], summary["compilations"])
 
     first, n1 = run("first", str(cache))
@@ -177,7 +183,7 @@ def test_a_second_run_reads_its_programs_back(tmp_path):
         len(list((cache / "jaxmocap-exported").glob("*.jaxexport"))) == 2
     )  # the weighted start and the step
     second, n2 = run("second", str(cache))
-    off, n3 = run("off", "off")
+    off, n3 = run("off", "off", threads=1)
     assert (n1, n2, n3) == ((1, 1), (0, 1), (1, 1))
     np.testing.assert_array_equal(first, second)
     np.testing.assert_array_equal(first, off)
