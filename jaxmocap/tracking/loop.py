@@ -186,10 +186,9 @@ class TrackingLoop:
 
         # the filter (a pytree: its arrays, schedule values and likelihood leaves are data) is an argument, not a
         # constant of the program: a filter that differs only in data reuses the compiled step. Inside
-        # ``stored_programs.use`` (the command line, ``jaxmocap.track``) the traced step is kept on disk under
-        # the setup's ``program_tag`` — what the step closes over besides its arguments — and the arguments'
-        # structure (:mod:`jaxmocap.stored_programs`); a setup without a tag traces every run. A setup may name
-        # XLA's options for its step (``compiler_options``: PARSEC's, :func:`jaxmocap.host.particle_options`)
+        # ``stored_programs.use`` (the command line, ``jaxmocap.track``) the traced step is kept on disk under the
+        # setup's ``program_tag`` (what the step closes over besides its arguments) and the arguments' structure;
+        # a setup without a tag traces every run; ``compiler_options``: XLA's for the step (PARSEC's)
         tag, options = (getattr(self.setup, name, None) for name in ("program_tag", "compiler_options"))
         self._jitted = self._step = StoredJit(
             step,
