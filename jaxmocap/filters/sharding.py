@@ -15,7 +15,7 @@ Three independent pieces, none of which changes the filter code (:mod:`jaxmocap.
   compiled call, ``jit(vmap(run))`` with :func:`jaxmocap.filters.base.run` (a ``lax.scan`` over frames) inside;
   with a mesh, the batch axis is sharded over the devices (``P("batch")``), i.e. the runs are spread over them.
 * **chunked likelihood** (:func:`chunked`, :func:`with_chunks`): ``loglik(X (N, D), ...) -> (N,)`` evaluated as
-  ``lax.map`` over ``⌈N / c⌉`` chunks of ``c`` particles, so that the likelihood's intermediates — e.g. the
+  ``lax.map`` over ``⌈N / c⌉`` equal chunks of at most ``c`` particles, so that the likelihood's intermediates — e.g. the
   ``(N, V, P)`` projected flesh points of :class:`jaxmocap.likelihood.compose.Likelihood` — take ``O(c)`` memory
   instead of ``O(N)``; the result is the same function of each particle, computed in pieces.
 
@@ -268,14 +268,15 @@ def batched_run(
 
 
 def chunked(loglik: Callable, chunk_size: int) -> Callable:
-    """``loglik(X (N, D), *args) -> (N,)`` evaluated ``chunk_size`` particles at a time.
+    """``loglik(X (N, D), *args) -> (N,)`` evaluated at most ``chunk_size`` particles at a time.
 
-    ``X`` is padded to ``n = ⌈N / c⌉`` chunks with copies of its first particle (their values are dropped),
-    reshaped to ``(n, c, D)`` and mapped with ``lax.map``, a sequential loop whose body holds the intermediates
-    of one chunk: peak memory ``O(c)`` instead of ``O(N)`` (at ``c ≥ N`` or ``c ≤ 0``, one call as before).
-    Every particle's value is the same function of that particle (the likelihoods are per-particle), so the
-    result equals ``loglik(X, *args)``: bit for bit for element-wise computations; reductions inside a particle
-    (sums over points and views) keep their order.
+    ``X`` goes as ``n = ⌈N / c⌉`` equal chunks of ``⌈N / n⌉ ≤ c`` particles (4097 particles at ``c = 4096`` as two
+    of 2049, not two of 4096), the last padded with copies of the first particle (their values are dropped),
+    mapped with ``lax.map``, a sequential loop whose body holds the intermediates of one chunk: peak memory
+    ``O(c)`` instead of ``O(N)`` (at ``c ≥ N`` or ``c ≤ 0``, one call as before). ``loglik`` may return any pytree
+    of ``(N, ...)`` arrays. Every particle's value is the same function of that particle (the likelihoods are
+    per-particle), so the result equals ``loglik(X, *args)``: bit for bit for element-wise computations;
+    reductions inside a particle (sums over points and views) keep their order.
     """
     c = int(chunk_size)
 
@@ -284,10 +285,11 @@ def chunked(loglik: Callable, chunk_size: int) -> Callable:
         if c <= 0 or N <= c:
             return loglik(X, *args)
         n = -(-N // c)
-        if n * c > N:
-            X = jnp.concatenate([X, jnp.broadcast_to(X[:1], (n * c - N, D))])
-        out = jax.lax.map(lambda Xc: loglik(Xc, *args), X.reshape(n, c, D))
-        return out.reshape(n * c)[:N]
+        size = -(-N // n)
+        if n * size > N:
+            X = jnp.concatenate([X, jnp.broadcast_to(X[:1], (n * size - N, D))])
+        out = jax.lax.map(lambda Xc: loglik(Xc, *args), X.reshape(n, size, D))
+        return jax.tree_util.tree_map(lambda a: a.reshape((n * size,) + a.shape[2:])[:N], out)
 
     return wrapped
 

@@ -59,6 +59,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxmocap import host
+from jaxmocap.filters.sharding import chunked
 from jaxmocap.parsec import cylinders
 from jaxmocap.parsec.cameras import Cameras, _trail
 from jaxmocap.parsec.files import NUM_DOFS, NUM_PARTS, BodyShape
@@ -104,7 +105,7 @@ class Config:
         ``ceil(n2 / inside_cols)`` blocks; bodytrack's rows have at least 4, the torso's about 6 here).
       inside_rows: blocks per lane taken by one iteration of the inside loop.
       max_batch: particles evaluated together at most: :func:`log_likelihood_batch` maps over equal chunks of a
-        larger batch (the last particle repeated to fill the last chunk). A batch's intermediate arrays grow with
+        larger batch (:func:`jaxmocap.filters.sharding.chunked`). A batch's intermediate arrays grow with
         it; past the CPU's caches every pass over them waits on memory: 16000 particles at once took 4.6 µs per
         particle, in four chunks of 4000 3.1 µs (AMD EPYC with 32 MB of L3, one thread, bit-identical values;
         8000 at once 3.0 µs).
@@ -614,19 +615,13 @@ def log_likelihood_batch(
 
     The particles are put on the last axis of every intermediate array, where XLA on CPU vectorises the
     per-sample arithmetic (several times faster than ``vmap``, whose batch axis leads); a batch of more than
-    ``config.max_batch`` particles is evaluated in equal chunks, one after the other (``lax.map``).
+    ``config.max_batch`` particles is evaluated in equal chunks, one after the other
+    (:func:`jaxmocap.filters.sharding.chunked`).
     """
     X = jnp.asarray(X)
     if X.ndim != 2 or X.shape[1] != NUM_DOFS:
         raise ValueError(f"expected particles of shape (N, 31), got {X.shape}")
-    n = X.shape[0]
-    chunks = -(-n // config.max_batch)
-    if chunks <= 1:
-        return _terms(shape, cams, obs, X.T, config)
-    size = -(-n // chunks)  # equal chunks of at most max_batch; the last particle fills the last one
-    X = jnp.concatenate([X, jnp.broadcast_to(X[-1:], (chunks * size - n, NUM_DOFS))])
-    out = jax.lax.map(lambda x: _terms(shape, cams, obs, x.T, config), X.reshape(chunks, size, NUM_DOFS))
-    return Terms(*(a.reshape(-1)[:n] for a in out))
+    return chunked(lambda x: _terms(shape, cams, obs, x.T, config), config.max_batch)(X)
 
 
 def make_loglik_batch(shape: BodyShape, cams: Cameras, config: Config = Config()) -> Callable:

@@ -442,7 +442,7 @@ def test_single_particle_function_agrees_with_the_batch(pdata, loglik_fn, corner
         assert (float(t.edge_samples), float(t.inside_samples)) == (ne.sum(), ni.sum())
         assert float(t.edge_error) == pytest.approx(ssd.sum() / 255.0**2 / ne.sum(), rel=1e-6)
         assert float(t.inside_error) == pytest.approx(bg.sum() / ni.sum(), rel=1e-6)
-    # a batch larger than max_batch is evaluated in chunks (3 of 3 here, the last particle repeated): the same
+    # a batch larger than max_batch is evaluated in equal chunks (3 of 3 here, padded): the same values
     chunked = jax.jit(pl.make_loglik_batch(pdata["shape"], pdata["cams"], pl.Config(max_batch=3)))
     np.testing.assert_array_equal(np.asarray(chunked(X, obs)), ll)
     # a new frame does not recompile
