@@ -197,7 +197,7 @@ SCRIPTS: dict[str, Script] = {
     "vs_bodytrack": Script(
         "jaxmocap vs PARSEC bodytrack built from source: likelihood and tracker, interleaved, idle and loaded",
         "perf/vs_bodytrack.py",
-        "--rounds 5 --against 9ca9ca5 --out benchmarks/results/vs_bodytrack.md",
+        "--rounds 5 --auto-rounds --against 9ca9ca5 --out benchmarks/results/vs_bodytrack.md",
         writes=("vs_bodytrack.md",),
     ),
     "instructions": Script(

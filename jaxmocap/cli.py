@@ -687,10 +687,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"jaxmocap {__version__}")
     p.add_argument(
         "--cpu-threads",
-        type=_positive_int,
-        default=None,
-        metavar="N",
-        help="XLA's CPU threads (default: one per core); 1 is steadier where other work shares the cores",
+        type=_cpu_threads,
+        default="auto",
+        metavar="N|auto",
+        help="XLA's CPU threads (default auto: one per core that other processes leave free, measured while "
+        "the program starts; N: that many)",
     )
     sub = p.add_subparsers(dest="command", required=True)
     calib = sub.add_parser("calib", help="inspect and convert camera calibrations")
@@ -734,6 +735,10 @@ def main(argv=None) -> int:
             return interrupts.exit_status(e)
 
 
+def _cpu_threads(text: str) -> int | str:
+    return "auto" if text == "auto" else _positive_int(text)
+
+
 def _positive_int(text: str) -> int:
     value = int(text)
     if value < 1:
@@ -745,9 +750,13 @@ def _main(argv) -> int:
     args = build_parser().parse_args(argv)
     from jaxmocap import host
 
-    host.limit_cpu_threads(args.cpu_threads)  # before anything starts JAX's backends
+    auto = args.cpu_threads == "auto"
+    sample = host.cpu_sample() if auto else None  # the imports below are the measurement's interval
     import jaxmocap.parsec  # noqa: F401  (the PARSEC wing registers the parsec31 body and the .cal camera reader)
     from jaxmocap import compilation_cache, stored_programs
+
+    threads = host.choose_cpu_threads(sample) if auto else args.cpu_threads
+    host.limit_cpu_threads(threads)  # before anything starts JAX's backends
 
     # a second run of a configuration reloads its compiled programs, and its traced steps (no tracing)
     cache = compilation_cache.enable()

@@ -13,7 +13,9 @@ Speed figures are only comparable between runs on the same :func:`description`.
   tracker step): copy insertion with region analysis, and XLA's loop fusion emitter instead of its default fusion
   emitters on a CPU without AVX-512.
 * :func:`limit_cpu_threads` — start XLA's CPU backend with fewer intra-op threads than cores, and
-  :func:`cpu_threads`, how many it has.
+  :func:`cpu_threads`, how many it has; :class:`CpuSample`, :func:`other_busy_cpus` and :func:`auto_cpu_threads`
+  — how many of this process's CPUs other processes keep busy (``/proc/stat``), and the threads that leaves
+  (``jaxmocap --cpu-threads auto``).
 
 :func:`vector_isa` and :func:`description` read ``/proc/cpuinfo`` once (Linux); elsewhere they fall back to :mod:`platform`.
 """
@@ -24,13 +26,23 @@ import functools
 import os
 import pathlib
 import platform
+import time
+from typing import NamedTuple
 
 __all__ = [
     "COPY_REGIONS",
     "LOOP_FUSION",
+    "MIN_INTERVAL_S",
+    "CpuSample",
+    "auto_cpu_threads",
+    "cpu_sample",
     "cpu_threads",
     "description",
     "limit_cpu_threads",
+    "choose_cpu_threads",
+    "other_busy_cpus",
+    "parse_proc_stat",
+    "thread_summary",
     "particle_options",
     "vector_isa",
 ]
@@ -173,3 +185,101 @@ def limit_cpu_threads(n: int | None) -> None:
         jax.devices("cpu")
     finally:
         os.sched_setaffinity(0, allowed)
+
+
+class CpuSample(NamedTuple):
+    """One reading of the CPUs' time counters: ``busy`` and ``total`` jiffies per CPU number (``/proc/stat``:
+    busy = user + nice + system + irq + softirq + steal, total = busy + idle + iowait), this process's own CPU
+    seconds (every thread, :func:`os.times`) and the monotonic wall clock (s)."""
+
+    busy: dict[int, int]
+    total: dict[int, int]
+    own_s: float
+    wall_s: float
+
+
+def parse_proc_stat(text: str) -> tuple[dict[int, int], dict[int, int]]:
+    """``(busy, total)`` jiffies per CPU from the text of ``/proc/stat`` (its ``cpuN`` lines; see :class:`CpuSample`)."""
+    busy, total = {}, {}
+    for line in text.splitlines():
+        head, _, rest = line.partition(" ")
+        if not (head.startswith("cpu") and head[3:].isdigit()):
+            continue
+        v = [int(x) for x in rest.split()] + [0] * 8
+        user, nice, system, idle, iowait, irq, softirq, steal = v[:8]
+        b = user + nice + system + irq + softirq + steal
+        busy[int(head[3:])], total[int(head[3:])] = b, b + idle + iowait
+    return busy, total
+
+
+def cpu_sample() -> CpuSample | None:
+    """The counters now (``None`` where ``/proc/stat`` cannot be read: not Linux)."""
+    try:
+        text = pathlib.Path("/proc/stat").read_text()
+    except OSError:
+        return None
+    busy, total = parse_proc_stat(text)
+    t = os.times()
+    return CpuSample(busy, total, t.user + t.system, time.monotonic())
+
+
+def other_busy_cpus(a: CpuSample, b: CpuSample, cpus) -> float:
+    """How many of ``cpus`` (CPU numbers, e.g. this process's affinity mask) other processes kept busy between the
+    samples ``a`` and ``b``: ``Σ_c Δbusy_c / Δtotal_c − Δown / Δwall`` (each CPU's busy fraction, less the CPUs this
+    process used itself), at least 0."""
+    used = 0.0
+    for c in cpus:
+        dt = b.total.get(c, 0) - a.total.get(c, 0)
+        if dt > 0:
+            used += (b.busy.get(c, 0) - a.busy.get(c, 0)) / dt
+    own = (b.own_s - a.own_s) / max(b.wall_s - a.wall_s, 1e-9)
+    return max(used - own, 0.0)
+
+
+def auto_cpu_threads(other: float, cpus: int) -> int:
+    """XLA's intra-op threads for ``cpus`` CPUs of which other processes keep ``other`` busy: one per CPU left,
+    ``cpus − round(other)``, at least 1. On a machine whose other cores are busy XLA's threads wait for a
+    descheduled peer at the end of every parallel kernel. On the 2-core machine of ``benchmarks/RESULTS.md``
+    (item 1), beside one busy process, the PARSEC likelihood ran at 3.20× bodytrack's speed in processes started
+    there (which chose one thread) against 2.85× on the two threads of a process started idle, and idle at 3.39×
+    (two threads chosen; ``vs_bodytrack.md``, 2026-11-30 15:49 UTC); the default tracker 1.13–1.17× faster busy
+    on one thread (README.md, where it describes ``xla_cpu_threads``)."""
+    return int(min(max(cpus - int(other + 0.5), 1), max(cpus, 1)))
+
+
+#: the shortest interval :func:`choose_cpu_threads` measures over (s)
+MIN_INTERVAL_S = 0.25
+#: the last automatic choice of this process (:func:`thread_summary`)
+_auto_choice: dict | None = None
+
+
+def choose_cpu_threads(since: CpuSample | None) -> int | None:
+    """``jaxmocap --cpu-threads auto``: :func:`auto_cpu_threads` for this process's affinity mask, from the other
+    processes' load between ``since`` (taken when the program started, so that its imports are the interval) and
+    now, over at least :data:`MIN_INTERVAL_S` (the rest slept); ``None`` (XLA's default: one per CPU) when every
+    CPU is left free or the counters cannot be read. The choice is kept for :func:`thread_summary`."""
+    global _auto_choice
+    if since is None or not hasattr(os, "sched_getaffinity"):
+        return None
+    rest = MIN_INTERVAL_S - (time.monotonic() - since.wall_s)
+    if rest > 0:
+        time.sleep(rest)
+    now = cpu_sample()
+    if now is None:
+        return None
+    cpus = sorted(os.sched_getaffinity(0))
+    other = other_busy_cpus(since, now, cpus)
+    n = auto_cpu_threads(other, len(cpus))
+    _auto_choice = {"cpus": len(cpus), "other_busy_cpus": round(other, 2), "threads": n,
+                    "interval_s": round(now.wall_s - since.wall_s, 3)}  # fmt: skip
+    return None if n >= len(cpus) else n
+
+
+def thread_summary() -> dict:
+    """What a run records of its CPU threads: ``xla_cpu_threads`` (:func:`cpu_threads`) and, after
+    ``--cpu-threads auto``, ``cpu_threads_auto`` (the CPUs, the other processes' busy CPUs measured, the threads
+    chosen and the interval of the measurement)."""
+    out = {"xla_cpu_threads": cpu_threads()}
+    if _auto_choice is not None:
+        out["cpu_threads_auto"] = dict(_auto_choice)
+    return out

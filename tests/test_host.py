@@ -1,11 +1,12 @@
 """The host CPU's description against util-linux's ``lscpu`` (its own parser of the same kernel interface) and on
 written ``/proc/cpuinfo`` texts; XLA's compiler options per CPU; XLA's CPU thread pool as the kernel lists its
-threads."""
+threads; the other processes' load from the kernel's ``/proc/stat`` counters (``--cpu-threads auto``)."""
 
 import os
 import shutil
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -150,7 +151,59 @@ def test_cpu_threads_are_chosen_before_the_backends_start():
     with pytest.raises(RuntimeError, match="backends have started"):
         host.limit_cpu_threads(1)
     host.limit_cpu_threads(None)  # no choice made: nothing to refuse
-    with pytest.raises(SystemExit):  # the command line takes a positive count only
-        __import__("jaxmocap.cli", fromlist=["build_parser"]).build_parser().parse_args(
-            ["--cpu-threads", "0", "demo"]
-        )
+    parser = __import__("jaxmocap.cli", fromlist=["build_parser"]).build_parser()
+    for bad in ("0", "-2", "two"):  # the command line takes a positive count or auto only
+        with pytest.raises(SystemExit):
+            parser.parse_args(["--cpu-threads", bad, "demo"])
+    assert parser.parse_args(["--cpu-threads", "auto", "demo"]).cpu_threads == "auto"
+    assert parser.parse_args(["--cpu-threads", "3", "demo"]).cpu_threads == 3
+
+
+STAT = """cpu  300 0 100 900 20 0 0 0 0 0
+cpu0 100 5 50 400 10 1 2 3 0 0
+cpu1 200 0 50 500 10 0 0 0 0 0
+intr 12345
+ctxt 678
+"""
+
+
+def test_proc_stat_counters_per_cpu():
+    """``/proc/stat``'s ``cpuN`` lines (user nice system idle iowait irq softirq steal …): busy = user + nice +
+    system + irq + softirq + steal, total = busy + idle + iowait; the aggregate ``cpu`` line is not a CPU."""
+    busy, total = host.parse_proc_stat(STAT)
+    assert busy == {0: 161, 1: 250} and total == {0: 571, 1: 760}
+
+
+def test_other_busy_cpus_and_the_threads_they_leave():
+    """Each CPU's busy fraction over the interval, summed, less what this process used itself: CPU 0 busy 80 of
+    100 jiffies, CPU 1 30 of 100, the process 0.5 CPU-s in 1 s → 0.8 + 0.3 − 0.5 = 0.6 CPUs; CPUs outside the
+    set asked about do not count."""
+    a = host.CpuSample({0: 0, 1: 0, 2: 0}, {0: 0, 1: 0, 2: 0}, own_s=1.0, wall_s=10.0)
+    b = host.CpuSample({0: 80, 1: 30, 2: 100}, {0: 100, 1: 100, 2: 100}, own_s=1.5, wall_s=11.0)
+    assert host.other_busy_cpus(a, b, [0, 1]) == pytest.approx(0.6)
+    assert host.other_busy_cpus(a, b, [0, 1, 2]) == pytest.approx(1.6)
+    assert host.other_busy_cpus(a, b._replace(own_s=5.0), [0, 1]) == 0.0  # never negative
+    # one thread per CPU the others leave free, at least one
+    table = {(0.0, 2): 2, (0.4, 2): 2, (0.6, 2): 1, (1.0, 2): 1, (3.0, 2): 1, (1.4, 8): 7, (0.0, 1): 1}
+    assert {k: host.auto_cpu_threads(*k) for k in table} == table
+
+
+def test_a_busy_process_is_measured_and_leaves_fewer_threads(monkeypatch):
+    """A CPU-bound child process (another program on the machine) shows as at least half a CPU kept busy by
+    others over :data:`jaxmocap.host.MIN_INTERVAL_S`, and ``choose_cpu_threads`` records its choice."""
+    monkeypatch.setattr(host, "_auto_choice", None)  # this test's choice stays in this test
+    busy = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    try:
+        time.sleep(0.3)  # the child has started
+        a = host.cpu_sample()
+        chosen = host.choose_cpu_threads(a)
+        b = host.cpu_sample()
+    finally:
+        busy.kill()
+        busy.wait()
+    cpus = len(os.sched_getaffinity(0))
+    assert host.other_busy_cpus(a, b, sorted(os.sched_getaffinity(0))) >= 0.5
+    record = host.thread_summary()["cpu_threads_auto"]
+    assert record["other_busy_cpus"] >= 0.5 and record["interval_s"] >= host.MIN_INTERVAL_S
+    assert record["threads"] == host.auto_cpu_threads(record["other_busy_cpus"], cpus)
+    assert chosen == (None if record["threads"] >= cpus else record["threads"])

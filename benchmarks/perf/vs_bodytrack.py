@@ -24,6 +24,13 @@ it times, alternating which of the two goes first from round to round:
   runs it, seed 0): per frame the host edge/foreground maps plus the compiled filter step (all layers), median over
   the frames; compiled before the first round.
 
+* **likelihood, a new process** (``--auto-rounds``): the same likelihood timed by a child process started in the
+  condition, which chooses XLA's CPU threads as ``jaxmocap`` does by default (``--cpu-threads auto``,
+  :func:`jaxmocap.host.choose_cpu_threads`: one per core the other processes leave free, measured over 0.25 s
+  when the child starts) and reads its compiled program from a persistent compilation cache shared by the
+  children; the threads chosen are reported per round. A process's threads are fixed when it starts, so the
+  in-process likelihood above keeps the threads of the condition the script started in.
+
 Each round records the 1-minute load average when it starts (``os.getloadavg``); a condition is labelled *idle*
 only when that load is below 1.0, otherwise *loaded* with the load. The ratio is bodytrack's time over jaxmocap's
 (above 1: jaxmocap faster); the report gives it per round and its median per condition.
@@ -32,7 +39,7 @@ With ``--against REV`` the trackers are also built from the package of git revis
 (:func:`common.package_at`) and timed against this checkout's, interleaved in both conditions
 (:func:`against_table`).
 
-    python benchmarks/perf/vs_bodytrack.py [--rounds 5] [--particles 4000] [--against REV] [--out benchmarks/results/vs_bodytrack.md]
+    python benchmarks/perf/vs_bodytrack.py [--rounds 5] [--particles 4000] [--auto-rounds] [--against REV] [--out benchmarks/results/vs_bodytrack.md]
 """
 
 from __future__ import annotations
@@ -100,6 +107,51 @@ class Jaxmocap:
 
 
 THIS = "this checkout"
+#: the measurement name of the likelihood timed in a new process per call (``--auto-rounds``)
+AUTO = "likelihood µs/particle, new process, auto threads"
+
+
+def likelihood_child(particles: int, repeats: int) -> dict:
+    """In a new process: XLA's CPU threads chosen as ``jaxmocap`` chooses them (``--cpu-threads auto``), then
+    :meth:`Jaxmocap.likelihood_us`'s measurement of the likelihood alone (its program from the persistent
+    compilation cache of ``JAXMOCAP_CACHE_DIR``). Returns ``{us, cpu_us, threads, other_busy_cpus}``."""
+    host.limit_cpu_threads(host.choose_cpu_threads(host.cpu_sample()))
+    from jaxmocap import compilation_cache
+
+    compilation_cache.enable()
+    seq = parsec.load_sequence(bt.SEQ)
+    obs = seq.observation(0)
+    X = (seq.initial_pose + np.random.default_rng(0).normal(size=(particles, 31)) * seq.pose_std).astype(
+        np.float32
+    )
+    X = jnp.asarray(X)
+    ll = pl.jit_loglik_batch(seq.shape, seq.cameras)
+    t = common.timed_calls(lambda: ll(X, obs).block_until_ready(), repeats, warmup=1)
+    auto = host.thread_summary()
+    return dict(us=float(np.median(t.wall)) / particles * 1e6, cpu_us=float(np.median(t.cpu)) / particles * 1e6,
+                threads=auto["xla_cpu_threads"],
+                other_busy_cpus=auto.get("cpu_threads_auto", {}).get("other_busy_cpus", 0.0))  # fmt: skip
+
+
+def likelihood_in_new_process(particles: int, repeats: int, cache: pathlib.Path) -> dict:
+    """:func:`likelihood_child` run by ``python vs_bodytrack.py --likelihood-child`` now (in the condition the
+    caller set up)."""
+    import json
+    import subprocess
+
+    env = dict(os.environ, JAXMOCAP_CACHE_DIR=str(cache))
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    argv = [
+        sys.executable,
+        __file__,
+        "--likelihood-child",
+        "--particles",
+        str(particles),
+        "--repeats",
+        str(repeats),
+    ]
+    proc = subprocess.run(argv, env=env, capture_output=True, text=True, check=True)
+    return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
 def against_table(jm: Jaxmocap, rev: str, rounds: int, log=print) -> str:
@@ -131,9 +183,12 @@ def against_table(jm: Jaxmocap, rev: str, rounds: int, log=print) -> str:
     return "\n".join(lines)
 
 
-def run(rounds: int, particles: int, repeats: int, log=print, against: str | None = None):
+def run(rounds: int, particles: int, repeats: int, log=print, against: str | None = None, auto: bool = False):
     """Every measurement (:func:`bodytrack.side_by_side` rows; µs per particle or seconds per frame), and the
-    :func:`against_table` of revision ``against`` (None without one)."""
+    :func:`against_table` of revision ``against`` (None without one); with ``auto`` also :data:`AUTO`, whose rows
+    carry the child's ``threads``."""
+    import tempfile
+
     bt.build()
     t0 = time.perf_counter()
     jm = Jaxmocap(particles, against)
@@ -149,6 +204,18 @@ def run(rounds: int, particles: int, repeats: int, log=print, against: str | Non
         return {lw: wall, lc: cpu}
 
     jobs = {lw: (ll_bodytrack, ll_jaxmocap)}
+    children = []
+    if auto:
+        cache = pathlib.Path(tempfile.mkdtemp(prefix="vs_bodytrack_cache_"))
+        likelihood_in_new_process(particles, 1, cache)  # compiles into the cache
+
+        def ll_child():
+            r = likelihood_in_new_process(particles, repeats, cache)
+            children.append(r)
+            log(f"  new process: {r['threads']} thread(s), others kept {r['other_busy_cpus']:.2f} CPUs busy")
+            return r["us"]
+
+        jobs[AUTO] = (lambda: bt.bodytrack_likelihood(particles, repeats)["us_median"], ll_child)
     for n, ly in TRACKER_CONFIGS:
         for model in bt.MODELS:
             jobs[f"tracker {n} × {ly} s/frame, bodytrack {model}"] = (
@@ -156,7 +223,22 @@ def run(rounds: int, particles: int, repeats: int, log=print, against: str | Non
                 lambda c=(n, ly): jm.frames(c),
             )
     rows = bt.side_by_side(jobs, rounds, log)
+    for row, child in zip([r for r in rows if r["what"] == AUTO], children, strict=True):
+        row["threads"] = child["threads"]
     return rows, (against_table(jm, against, rounds, log) if against is not None else None)
+
+
+def auto_note(rows: list[dict]) -> str:
+    """The threads the new processes chose, per condition."""
+    sel = [r for r in rows if r["what"] == AUTO]
+    if not sel:
+        return ""
+    per = {c: [r["threads"] for r in sel if r["condition"] == c] for c in bt.CONDITIONS}
+    return (
+        "XLA CPU threads chosen by the new processes (`--cpu-threads auto`), per round: "
+        + "; ".join(f"{c}: {', '.join(map(str, t))}" for c, t in per.items())
+        + "."
+    )
 
 
 def to_markdown(rows: list[dict], particles: int, repeats: int) -> str:
@@ -179,16 +261,35 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--against", metavar="REV", help="also time the tracker built from the package of git revision REV"
     )
+    ap.add_argument(
+        "--auto-rounds",
+        action="store_true",
+        help="also the likelihood in a new process per round, threads chosen as --cpu-threads auto",
+    )
+    ap.add_argument("--likelihood-child", action="store_true", help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
+    if a.likelihood_child:
+        import json
+
+        print(json.dumps(likelihood_child(a.particles, a.repeats)))
+        return 0
     rows, versus = run(
-        a.rounds, a.particles, a.repeats, log=lambda s: print(s, flush=True), against=a.against
+        a.rounds,
+        a.particles,
+        a.repeats,
+        log=lambda s: print(s, flush=True),
+        against=a.against,
+        auto=a.auto_rounds,
     )
     md = to_markdown(rows, a.particles, a.repeats)
+    if a.auto_rounds:
+        md += "\n\n" + auto_note(rows)
     if versus is not None:
         md += "\n\n" + versus
     print(md)
     if a.out is not None:
         cmd = f"python {common.script(__file__)} --rounds {a.rounds}"
+        cmd += " --auto-rounds" if a.auto_rounds else ""
         cmd += f" --against {a.against}" if a.against else ""
         cmd += f" --out {a.out}"
         common.write_result(a.out, "# jaxmocap vs PARSEC bodytrack, side by side\n\n" + md, cmd)

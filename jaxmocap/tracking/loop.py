@@ -665,7 +665,7 @@ class TrackingLoop:
             "compiled_after_first_frame": stats["compiled_after_first_frame"],
             "cpu": host.description(),  # what XLA compiled for: speeds compare only on the same CPU
             "xla_options": self._jitted.compiler_options,
-            "xla_cpu_threads": host.cpu_threads(),  # XLA's intra-op pool (jaxmocap --cpu-threads)
+            **host.thread_summary(),  # XLA's intra-op pool (jaxmocap --cpu-threads)
             "model": model.name,
             "filter": self.o.filter,
             "particles": setup.num_particles,

@@ -151,7 +151,9 @@ def test_a_second_run_reads_its_programs_back(tmp_path):
     """With the compilation cache on, the first run stores its traced weighted start and filter step
     (jaxmocap.stored_programs) and a second process calls them without tracing the step (``step_traces`` 0, one
     step program all the same): the same poses bit for bit, and the same as a run with the cache off, which runs
-    XLA's CPU backend on one thread (``jaxmocap --cpu-threads 1``: the summary counts its pool's threads)."""
+    XLA's CPU backend on one thread (``jaxmocap --cpu-threads 1``: the summary counts its pool's threads); the
+    first run chooses its threads by the machine's load (the default, ``--cpu-threads auto``) and records the
+    choice, the second takes one per CPU."""
     import os
     import subprocess
     import sys
@@ -161,9 +163,9 @@ def test_a_second_run_reads_its_programs_back(tmp_path):
     env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
     env["JAX_PLATFORMS"] = "cpu"
 
-    def run(name, cache_dir, threads=None):
+    def run(name, cache_dir, threads="auto"):
         cmd = [sys.executable, "-m", "jaxmocap.cli"] + (
-            [] if threads is None else ["--cpu-threads", str(threads)]
+            [] if threads == "auto" else ["--cpu-threads", str(threads)]
         )
         cmd += ["track", str(tmp_path / "in"), "--particles", "50"]
         cmd += ["--layers", "1", "--frames", "0:1", "--out", str(tmp_path / name), "--quiet"]
@@ -174,15 +176,24 @@ def test_a_second_run_reads_its_programs_back(tmp_path):
         summary = json.loads((tmp_path / name / "diagnostics.json").read_text())["summary"]
         # PARSEC's step compiled with this CPU's options for its likelihood, recorded beside the CPU
         assert (summary["xla_options"], summary["cpu"]) == (host.particle_options(), host.description())
-        # XLA's pool: one thread per CPU the process may use, unless --cpu-threads says fewer
-        assert summary["xla_cpu_threads"] == (threads or len(os.sched_getaffinity(0)))
+        # XLA's pool: by default (auto) one thread per CPU the other processes left free while it started, or
+        # the number --cpu-threads gives
+        cpus = len(os.sched_getaffinity(0))
+        if threads == "auto":
+            auto = summary["cpu_threads_auto"]
+            assert auto["cpus"] == cpus and auto["interval_s"] >= host.MIN_INTERVAL_S
+            assert auto["threads"] == host.auto_cpu_threads(auto["other_busy_cpus"], cpus)
+            threads = auto["threads"]
+        else:
+            assert "cpu_threads_auto" not in summary
+        assert summary["xla_cpu_threads"] == threads
         return export.load_poses(tmp_path / name)["state"], (summary["step_traces"], summary["compilations"])
 
     first, n1 = run("first", str(cache))
     assert (
         len(list((cache / "jaxmocap-exported").glob("*.jaxexport"))) == 2
     )  # the weighted start and the step
-    second, n2 = run("second", str(cache))
+    second, n2 = run("second", str(cache), threads=len(os.sched_getaffinity(0)))
     off, n3 = run("off", "off", threads=1)
     assert (n1, n2, n3) == ((1, 1), (0, 1), (1, 1))
     np.testing.assert_array_equal(first, second)
