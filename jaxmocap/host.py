@@ -242,7 +242,7 @@ def auto_cpu_threads(other: float, cpus: int) -> int:
     descheduled peer at the end of every parallel kernel. On the 2-core machine of ``benchmarks/RESULTS.md``
     (item 1), beside one busy process, the PARSEC likelihood ran at 3.20× bodytrack's speed in processes started
     there (which chose one thread) against 2.85× on the two threads of a process started idle, and idle at 3.39×
-    (two threads chosen; ``vs_bodytrack.md``, 2026-11-30 15:49 UTC); the default tracker 1.13–1.17× faster busy
+    (two threads chosen; ``vs_bodytrack.md``, 2026-11-30 15:49 UTC); the default tracker 1.00–1.19× faster busy
     on one thread (README.md, where it describes ``xla_cpu_threads``)."""
     return int(min(max(cpus - int(other + 0.5), 1), max(cpus, 1)))
 
