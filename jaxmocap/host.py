@@ -257,9 +257,13 @@ def choose_cpu_threads(since: CpuSample | None) -> int | None:
     """``jaxmocap --cpu-threads auto``: :func:`auto_cpu_threads` for this process's affinity mask, from the other
     processes' load between ``since`` (taken when the program started, so that its imports are the interval) and
     now, over at least :data:`MIN_INTERVAL_S` (the rest slept); ``None`` (XLA's default: one per CPU) when every
-    CPU is left free or the counters cannot be read. The choice is kept for :func:`thread_summary`."""
+    CPU is left free or the counters cannot be read, and without measuring when JAX's backends have started
+    already (the command line called from a process that has computed: its threads are fixed). The choice is
+    kept for :func:`thread_summary`."""
     global _auto_choice
-    if since is None or not hasattr(os, "sched_getaffinity"):
+    from jax._src import xla_bridge
+
+    if since is None or not hasattr(os, "sched_getaffinity") or xla_bridge.backends_are_initialized():
         return None
     rest = MIN_INTERVAL_S - (time.monotonic() - since.wall_s)
     if rest > 0:

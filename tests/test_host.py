@@ -151,6 +151,8 @@ def test_cpu_threads_are_chosen_before_the_backends_start():
     with pytest.raises(RuntimeError, match="backends have started"):
         host.limit_cpu_threads(1)
     host.limit_cpu_threads(None)  # no choice made: nothing to refuse
+    # the command line's default (auto) called in such a process leaves its threads as they are, unmeasured
+    assert host.choose_cpu_threads(host.cpu_sample()) is None
     parser = __import__("jaxmocap.cli", fromlist=["build_parser"]).build_parser()
     for bad in ("0", "-2", "two"):  # the command line takes a positive count or auto only
         with pytest.raises(SystemExit):
@@ -191,7 +193,10 @@ def test_other_busy_cpus_and_the_threads_they_leave():
 def test_a_busy_process_is_measured_and_leaves_fewer_threads(monkeypatch):
     """A CPU-bound child process (another program on the machine) shows as at least half a CPU kept busy by
     others over :data:`jaxmocap.host.MIN_INTERVAL_S`, and ``choose_cpu_threads`` records its choice."""
+    from jax._src import xla_bridge
+
     monkeypatch.setattr(host, "_auto_choice", None)  # this test's choice stays in this test
+    monkeypatch.setattr(xla_bridge, "backends_are_initialized", lambda: False)  # as in a process starting
     busy = subprocess.Popen([sys.executable, "-c", "while True: pass"])
     try:
         time.sleep(0.3)  # the child has started
