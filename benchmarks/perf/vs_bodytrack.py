@@ -66,6 +66,22 @@ from jaxmocap.parsec import likelihood as pl  # noqa: E402
 TRACKER_CONFIGS = ((4000, 5), (1000, 3))
 
 
+def likelihood_problem(seq, particles: int):
+    """``(likelihood, particles, observation)``: :func:`jaxmocap.parsec.likelihood.jit_loglik_batch` of ``seq``,
+    ``particles`` states drawn around its initial pose with its standard deviations (seed 0), frame 0."""
+    x0, std = seq.initial_pose, seq.pose_std
+    X = (x0 + np.random.default_rng(0).normal(size=(particles, 31)) * std).astype(np.float32)
+    return pl.jit_loglik_batch(seq.shape, seq.cameras), jnp.asarray(X), seq.observation(0)
+
+
+def likelihood_us(ll, X, obs, repeats: int) -> tuple[float, float]:
+    """Median wall and process-CPU µs per particle of ``ll(X, obs)`` over ``repeats`` calls after one untimed call
+    (as ``ll_bench`` discards its first pass)."""
+    t = common.timed_calls(lambda: ll(X, obs).block_until_ready(), repeats, warmup=1)
+    n = X.shape[0]
+    return float(np.median(t.wall)) / n * 1e6, float(np.median(t.cpu)) / n * 1e6
+
+
 class Jaxmocap:
     """The jaxmocap side, compiled once: the likelihood of ``particles`` states of frame 0 and the PARSEC tracker
     at each configuration of :data:`TRACKER_CONFIGS`."""
@@ -73,11 +89,7 @@ class Jaxmocap:
     def __init__(self, particles: int, against: str | None = None):
         self.seq = parsec.load_sequence(bt.SEQ)
         seq = self.seq
-        self.obs0 = seq.observation(0)
-        x0, std = seq.initial_pose, seq.pose_std
-        X = (x0 + np.random.default_rng(0).normal(size=(particles, 31)) * std).astype(np.float32)
-        self.X = jnp.asarray(X)
-        self.ll = pl.jit_loglik_batch(seq.shape, seq.cameras)
+        self.ll, self.X, self.obs0 = likelihood_problem(seq, particles)
         self.ll(self.X, self.obs0).block_until_ready()
         self.trackers = {c: bt.Tracker(seq, *c) for c in TRACKER_CONFIGS}
         for c in TRACKER_CONFIGS:  # compile
@@ -90,11 +102,8 @@ class Jaxmocap:
                 self.against[c].run(0)
 
     def likelihood_us(self, repeats: int) -> tuple[float, float]:
-        """Median wall and process-CPU µs per particle over ``repeats`` calls after one untimed call (as
-        ``ll_bench`` discards its first pass)."""
-        t = common.timed_calls(lambda: self.ll(self.X, self.obs0).block_until_ready(), repeats, warmup=1)
-        n = self.X.shape[0]
-        return float(np.median(t.wall)) / n * 1e6, float(np.median(t.cpu)) / n * 1e6
+        """:func:`likelihood_us` of the likelihood compiled here."""
+        return likelihood_us(self.ll, self.X, self.obs0, repeats)
 
     def frames(self, config: tuple[int, int], seed: int = 0) -> float:
         """Seconds per frame, median over the frames: host maps of frame ``t`` + the compiled filter step."""
@@ -113,23 +122,15 @@ AUTO = "likelihood µs/particle, new process, auto threads"
 
 def likelihood_child(particles: int, repeats: int) -> dict:
     """In a new process: XLA's CPU threads chosen as ``jaxmocap`` chooses them (``--cpu-threads auto``), then
-    :meth:`Jaxmocap.likelihood_us`'s measurement of the likelihood alone (its program from the persistent
-    compilation cache of ``JAXMOCAP_CACHE_DIR``). Returns ``{us, cpu_us, threads, other_busy_cpus}``."""
+    :func:`likelihood_us` of :func:`likelihood_problem` (its program from the persistent compilation cache of
+    ``JAXMOCAP_CACHE_DIR``). Returns ``{us, cpu_us, threads, other_busy_cpus}``."""
     host.limit_cpu_threads(host.choose_cpu_threads(host.cpu_sample()))
     from jaxmocap import compilation_cache
 
     compilation_cache.enable()
-    seq = parsec.load_sequence(bt.SEQ)
-    obs = seq.observation(0)
-    X = (seq.initial_pose + np.random.default_rng(0).normal(size=(particles, 31)) * seq.pose_std).astype(
-        np.float32
-    )
-    X = jnp.asarray(X)
-    ll = pl.jit_loglik_batch(seq.shape, seq.cameras)
-    t = common.timed_calls(lambda: ll(X, obs).block_until_ready(), repeats, warmup=1)
+    us, cpu_us = likelihood_us(*likelihood_problem(parsec.load_sequence(bt.SEQ), particles), repeats)
     auto = host.thread_summary()
-    return dict(us=float(np.median(t.wall)) / particles * 1e6, cpu_us=float(np.median(t.cpu)) / particles * 1e6,
-                threads=auto["xla_cpu_threads"],
+    return dict(us=us, cpu_us=cpu_us, threads=auto["xla_cpu_threads"],
                 other_busy_cpus=auto.get("cpu_threads_auto", {}).get("other_busy_cpus", 0.0))  # fmt: skip
 
 
@@ -215,7 +216,7 @@ def run(rounds: int, particles: int, repeats: int, log=print, against: str | Non
             log(f"  new process: {r['threads']} thread(s), others kept {r['other_busy_cpus']:.2f} CPUs busy")
             return r["us"]
 
-        jobs[AUTO] = (lambda: bt.bodytrack_likelihood(particles, repeats)["us_median"], ll_child)
+        jobs[AUTO] = (lambda: ll_bodytrack()[lw], ll_child)
     for n, ly in TRACKER_CONFIGS:
         for model in bt.MODELS:
             jobs[f"tracker {n} × {ly} s/frame, bodytrack {model}"] = (
