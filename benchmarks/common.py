@@ -175,6 +175,9 @@ def run_cli(root: pathlib.Path, cache: pathlib.Path, args: list[str]) -> float:
     env = dict(os.environ, JAXMOCAP_CACHE_DIR=str(cache), JAX_PLATFORMS="cpu")
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
     env.pop("PYTHONPATH", None)
+    # Python's bytecode cache as an installation has it (a shell with PYTHONDONTWRITEBYTECODE set compiles every
+    # module of the package from source in every process: 0.2 s of a warm start)
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
     t0 = time.perf_counter()
     proc = subprocess.run(
         [sys.executable, "-m", "jaxmocap.cli", *args], capture_output=True, text=True, env=env, cwd=root

@@ -41,16 +41,19 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
-import optax
 
 from jaxmocap.filters import base
 from jaxmocap.filters.annealing import Schedule
 from jaxmocap.filters.apf import weigh_layer
 from jaxmocap.filters.base import Info, Layer, State
 from jaxmocap.likelihood.gradients import batch_value_and_grad
+
+if TYPE_CHECKING:
+    import optax
 
 __all__ = ["DEFAULT_REFINE", "OPTIMIZERS", "GradientMove", "HybridAPF", "gradient_ascent", "make_optimizer"]
 
@@ -59,6 +62,7 @@ OPTIMIZERS = ("adam", "sgd", "normalised")
 
 def _normalised_steps(learning_rate: float) -> optax.GradientTransformation:
     """Updates ``−lr · g / ‖g‖`` (zero for a zero gradient): a fixed step length along the descent direction."""
+    import optax
 
     def init(params):
         del params
@@ -74,10 +78,21 @@ def _normalised_steps(learning_rate: float) -> optax.GradientTransformation:
     return optax.GradientTransformation(init, update)
 
 
+def _is_transformation(x) -> bool:
+    import optax
+
+    return isinstance(x, optax.GradientTransformation)
+
+
 def make_optimizer(
     name: str | optax.GradientTransformation, learning_rate: float
 ) -> optax.GradientTransformation:
-    """An optax transformation by name (:data:`OPTIMIZERS`), or ``name`` itself when it already is one."""
+    """An optax transformation by name (:data:`OPTIMIZERS`), or ``name`` itself when it already is one.
+
+    (optax is imported by the functions that use it, not with this module: a run without gradient moves does not
+    load it, about 0.1 s of every command's start.)"""
+    import optax
+
     if isinstance(name, optax.GradientTransformation):
         return name
     if name == "adam":
@@ -114,7 +129,7 @@ class GradientMove:
             raise ValueError("steps must be ≥ 0")
         if self.best_k is not None and self.best_k < 1:
             raise ValueError("best_k must be ≥ 1 (or None for every particle)")
-        if not isinstance(self.optimizer, optax.GradientTransformation) and self.optimizer not in OPTIMIZERS:
+        if self.optimizer not in OPTIMIZERS and not _is_transformation(self.optimizer):
             raise ValueError(f"unknown optimizer {self.optimizer!r}; choose one of {OPTIMIZERS}")
         if self.layers is not None:
             object.__setattr__(self, "layers", tuple(int(i) for i in self.layers))

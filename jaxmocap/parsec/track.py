@@ -159,6 +159,7 @@ class ParsecSetup:
         else:
             self.x0, self.init_how = parsec.load_pose(o.init), "file"
         self._joints = jax.jit(lambda x: body_mod.joint_positions(self.model, x))
+        self._filter = None
 
     def observe(self, t: int):
         """``(observation, None, None, None)``, or ``(None, None, None, why)`` for a frame skipped (the first frame
@@ -178,9 +179,21 @@ class ParsecSetup:
         pass
 
     def make_filter(self, x0):
-        """The APF in PARSEC mode on the PARSEC likelihood."""
-        self._loglik = make_loglik(self.source.shape, self.source.cameras)
-        return annealing.parsec_apf(self._loglik, _f32(self.std), self.num_particles, self.layers)
+        """The APF in PARSEC mode on the PARSEC likelihood: one object per run, whatever ``x0`` (the filter does not
+        depend on the first pose), so that the step compiled ahead (:meth:`compile_arguments`) is the step the
+        frames call (its program is found by the filter's identity, a closure over the likelihood)."""
+        if self._filter is None:
+            self._loglik = make_loglik(self.source.shape, self.source.cameras)
+            self._filter = annealing.parsec_apf(self._loglik, _f32(self.std), self.num_particles, self.layers)
+        return self._filter
+
+    def compile_arguments(self, key, obs):
+        """``(filter, state)`` of the first step, the state as shapes (``jax.ShapeDtypeStruct``): the step is
+        compiled (or read from the cache) in a thread while :meth:`start` runs (:mod:`jaxmocap.tracking.loop`,
+        compiling ahead). The weighted start's state has the shapes and dtypes of ``filter.init``'s."""
+        filt = self.make_filter(self.x0)
+        dt = jnp.float32
+        return filt, jax.eval_shape(lambda k: filt.init(k, jnp.zeros(31, dt), jnp.ones(31, dt)), key)
 
     def start(self, filt, key, x0, spread, obs) -> State:
         """bodytrack's weighted initial set (:func:`weighted_start`)."""

@@ -3,11 +3,11 @@
 :class:`TrackingLoop` drives a setup (:class:`jaxmocap.tracking.setup.TrackSetup` or PARSEC's): per frame, the key
 is ``fold_in(key(seed), frame)`` (never carried), so that a resumed run reproduces an uninterrupted one; a damped
 constant-velocity prediction of the root (its translation, and by default its angles:
-``TrackOptions.velocity_dofs``) with full turns of the heading taken out (:func:`unwind`), the filter step (jitted **once**, with the filter as an
-argument, so that its data — diffusion std, schedule values, the likelihood's cue weights and λ — are not constants
-of the program: ``trace_count`` stays 1, or 0 when the run reads the traced step back from disk,
-:mod:`jaxmocap.stored_programs`; the summary's ``compilations`` counts both ways of making it: 1),
-track-loss detection and re-initialisation, and incremental outputs (:mod:`jaxmocap.io.export`) with a resume
+``TrackOptions.velocity_dofs``) with full turns of the heading taken out (:mod:`jaxmocap.tracking.prediction`),
+the filter step (jitted **once**, with the filter as an argument, so that its data — diffusion std, schedule
+values, the likelihood's cue weights and λ — are not constants of the program: ``trace_count`` stays 1, or 0
+when the run reads the traced step back from disk, :mod:`jaxmocap.stored_programs`; the summary's
+``compilations`` counts both ways of making it: 1), track-loss detection and re-initialisation, and incremental outputs (:mod:`jaxmocap.io.export`) with a resume
 checkpoint (``resume.npz``, :class:`jaxmocap.tracking.run_folder.Checkpoints`: at most once a second, and on every
 way out; a run killed by SIGKILL is resumed from its last checkpoint and tracks the frames after it again, to the
 same bits).
@@ -39,7 +39,7 @@ pose to fit, compiles that fit the same way and runs the filter's re-initialisat
 compiles it), so that its first track loss compiles nothing either.
 
 **No frame compiles.** Every frame has the first one's shapes, and whatever runs per frame is compiled once (the
-prediction is one program, :func:`predict`; host arrays go to the device by ``jax.device_put``, since
+prediction is one program, :func:`jaxmocap.tracking.prediction.predict`; host arrays go to the device by ``jax.device_put``, since
 ``jnp.asarray`` of a host array compiles a conversion per shape). The loop counts the programs its thread lowers
 (:class:`jaxmocap.tracking.compile_watch.CompileWatch`): a frame after the first that compiles has
 ``compiled_programs`` in its record, the summary has their total (``compiled_after_first_frame``, 0), and the run
@@ -78,7 +78,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxmocap import host
-from jaxmocap.choices import VELOCITY_DOFS
 from jaxmocap.errors import MocapInputError
 from jaxmocap.eval.mixtures import count_layer_modes
 from jaxmocap.filters.base import State
@@ -88,7 +87,7 @@ from jaxmocap.io.sources import BadFrame
 from jaxmocap.stored_programs import StoredJit
 from jaxmocap.tracking import interrupts, outputs, resources, run_folder
 from jaxmocap.tracking.compile_watch import CompileWatch
-from jaxmocap.tracking.init import root_translation_dofs
+from jaxmocap.tracking.prediction import angle_difference, predict, velocity_dofs
 from jaxmocap.tracking.progress import CompileNotice, Progress, warn
 
 __all__ = ["MAX_SEED", "LossTracker", "TrackingLoop", "layer_records"]
@@ -526,7 +525,7 @@ class TrackingLoop:
                         centre=jax.device_put(np.asarray(centre, np.float32)), valid=jax.device_put(np.True_)
                     )
                 # damped constant-velocity prediction of the DOFs of ``velocity_dofs`` (zero without two frames
-                # before), then full turns taken out: one program on every frame (:func:`predict`)
+                # before), then full turns taken out: one program on every frame (``prediction.predict``)
                 hist = loss.hist
                 v = np.zeros(model.num_dofs)
                 if len(hist) == 2 and hist[0][0] == t - 2 and hist[1][0] == t - 1 and setup.velocity > 0:
@@ -662,6 +661,7 @@ class TrackingLoop:
             "compilations": self.step_programs,
             "step_traces": self.trace_count,
             "compile_s": self.compile_s,
+            "compiled_ahead": self.compiled_ahead,  # the step compiled while the first frame was initialised
             "compiled_after_first_frame": stats["compiled_after_first_frame"],
             "cpu": host.description(),  # what XLA compiled for: speeds compare only on the same CPU
             "xla_options": self._jitted.compiler_options,
@@ -731,49 +731,6 @@ class TrackingLoop:
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
         return paths
-
-
-def velocity_dofs(model, which: str = "translation") -> np.ndarray:
-    """``(D,)`` bool: the DOFs of the constant-velocity prediction (``TrackOptions.velocity_dofs``):
-    ``translation`` the root's translation, ``root`` all of the root's DOFs (its heading and tilts too), ``all``
-    every DOF."""
-    out = np.zeros(model.num_dofs, bool)
-    if which == "all":
-        out[:] = True
-    elif which == "root":
-        out[list(model.topology.segment_dofs[0])] = True
-    elif which == "translation":
-        out[root_translation_dofs(model)] = True
-    else:
-        raise ValueError(f"unknown velocity_dofs {which!r}; choose one of {', '.join(VELOCITY_DOFS)}")
-    return out
-
-
-def angle_difference(a: np.ndarray, b: np.ndarray, circular: np.ndarray) -> np.ndarray:
-    """``a − b`` ``(D,)``, the entries flagged ``circular`` wrapped into ``[−π, π)`` (a heading going from 179° to
-    −179° turned by 2°, not by −358°)."""
-    d = np.asarray(a, np.float64) - np.asarray(b, np.float64)
-    return np.where(circular, np.mod(d + np.pi, 2 * np.pi) - np.pi, d)
-
-
-@jax.jit
-def unwind(particles: jnp.ndarray, circular: jnp.ndarray) -> jnp.ndarray:
-    """``particles (N, D)`` with each DOF flagged ``circular`` (``(D,)`` bool; a full-turn angle such as the root's
-    heading) moved by the multiple of 2π, ``2π k`` with ``k = round(x̄ / 2π)`` (the same for every particle: the set
-    stays in one piece), that brings the particles' mean ``x̄`` into ``[−π, π]``. Such an angle's limits are
-    ``±2π`` and the diffusion clips at them: without this a body that keeps turning one way would be held at the
-    limit after at most two turns (less, from a start near ±π)."""
-    two_pi = jnp.asarray(2 * np.pi, particles.dtype)
-    k = jnp.where(circular, jnp.round(jnp.mean(particles, axis=0) / two_pi), 0.0)
-    return particles - two_pi * k
-
-
-@jax.jit
-def predict(particles: jnp.ndarray, step: jnp.ndarray, circular: jnp.ndarray) -> jnp.ndarray:
-    """The frame's prediction of ``particles (N, D)``: moved by ``step (D,)`` (the damped constant velocity, zero
-    where none), then :func:`unwind`; one compiled program, the same on every frame (an eager update would compile
-    its operations on the first frame that has a velocity)."""
-    return unwind(particles + step, circular)
 
 
 def _device():

@@ -187,6 +187,8 @@ def test_a_second_run_reads_its_programs_back(tmp_path):
         else:
             assert "cpu_threads_auto" not in summary
         assert summary["xla_cpu_threads"] == threads
+        # the step compiled (or read back) in a thread while the weighted start ran, and then called as it was
+        assert summary["compiled_ahead"]
         return export.load_poses(tmp_path / name)["state"], (summary["step_traces"], summary["compilations"])
 
     first, n1 = run("first", str(cache))

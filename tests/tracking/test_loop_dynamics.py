@@ -10,8 +10,9 @@ import pytest
 
 from jaxmocap.filters.factory import make_filter
 from jaxmocap.geometry import body
-from jaxmocap.tracking.loop import LossTracker, angle_difference, unwind, velocity_dofs
+from jaxmocap.tracking.loop import LossTracker
 from jaxmocap.tracking.options import TrackOptions, diffusion_std
+from jaxmocap.tracking.prediction import angle_difference, unwind, velocity_dofs
 
 
 @pytest.fixture(scope="module")
