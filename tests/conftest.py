@@ -8,8 +8,8 @@ end: nothing is carried between runs, and a test that counts traces or compilati
 ``jax.log_compiles``) sees the same counts as without it, since the in-memory jit cache is unchanged.
 
 Programs are compiled for compile time, not run time (:data:`SUITE_XLA_FLAGS` added to ``XLA_FLAGS``, inherited
-by the workers and by the ``jaxmocap`` child processes): most of the suite's time is XLA compiling programs that
-then run for milliseconds. Two flags: XLA's lowest backend optimisation level
+by the workers and by the ``jaxmocap`` child processes): the suite's programs run for milliseconds, and with
+XLA's defaults compiling them was most of its time (with these flags, 5 % of ``test_tracker.py``'s). Two flags: XLA's lowest backend optimisation level
 (``--xla_backend_optimization_level=0``: how much LLVM optimises the machine code) and XLA's classic loop emitters
 instead of its MLIR fusion emitters (``--xla_cpu_use_fusion_emitters=false``: XLA spends about a third of a compile
 in the emitters' per-kernel pipeline). Together they cut the compilation of the tracker's programs 2.6–4.0× and make
@@ -17,16 +17,17 @@ them run 4.7–9.7× slower (``benchmarks/perf/compile_time.py --programs --code
 keeps XLA's defaults. Neither changes the operations of
 a program: the results agree with the defaults' to float rounding, which the tolerances allow for. Programs compared
 bit for bit, and those whose time is run time, are compiled with XLA's defaults by their tests. No test times
-anything.
+anything. To run the suite on the production code generation, name the flags yourself
+(``XLA_FLAGS="--xla_backend_optimization_level=2 --xla_cpu_use_fusion_emitters=true" python -m pytest``): a flag
+already in ``XLA_FLAGS`` is kept.
 
 Programs are lowered without Python tracebacks in their MLIR locations (:data:`SUITE_JAX_CONFIG`, environment
 variables that JAX reads when it is imported: ``JAX_TRACEBACK_IN_LOCATIONS_LIMIT=0``,
 ``JAX_INCLUDE_FULL_TRACEBACKS_IN_LOCATIONS=false``): the locations serve XLA's dumps and its error messages, and
 building them for every operation is part of lowering, which with tracing is most of the suite's time
 (``tests/tracking/test_tracker.py`` sampled: tracing 31 %, lowering 21 %, XLA compiling 5 %): that file ran in
-105 s instead of 116 s. The programs are the same. To run the suite on the production code generation, name the flags yourself
-(``XLA_FLAGS="--xla_backend_optimization_level=2 --xla_cpu_use_fusion_emitters=true" python -m pytest``): a flag
-already in ``XLA_FLAGS`` is kept.
+105 s instead of 116 s on one worker (one run each; a gain the whole suite's time, ±5 % from run to run, does not
+show). The programs are the same.
 """
 
 import os

@@ -153,7 +153,8 @@ def test_a_second_run_reads_its_programs_back(tmp_path):
     step program all the same): the same poses bit for bit, and the same as a run with the cache off, which runs
     XLA's CPU backend on one thread (``jaxmocap --cpu-threads 1``: the summary counts its pool's threads); the
     first run chooses its threads by the machine's load (the default, ``--cpu-threads auto``) and records the
-    choice, the second takes one per CPU."""
+    choice, the second takes one per CPU. Every run compiles (or reads) its step in a thread beside the weighted
+    start, and its frames call that program (``compiled_ahead``; one step program)."""
     import os
     import subprocess
     import sys
