@@ -179,7 +179,7 @@ class Likelihood:
         return Likelihood(
             model=model,
             rig=rig.to_jax(dtype),
-            surface=flesh.surface_points(model, layout),
+            surface=flesh.surface_points_compiled(model, layout),
             view_weights=jnp.asarray(w, dtype),
             schedule=jnp.asarray(lam, dtype),
             references=(None,) * C,

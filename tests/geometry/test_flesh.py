@@ -158,6 +158,28 @@ def test_layout_static_under_jit_and_traced_dimensions():
         jax.jit(lambda sc: flesh.surface_points(body.full25({"thigh_length": sc}), 300).local)(0.4)
 
 
+def test_the_compiled_surface_points_are_the_eager_ones_and_are_stored(tmp_path):
+    """``surface_points_compiled`` (one program, what ``Likelihood.create`` calls) gives the eager
+    ``surface_points`` to float32 rounding, with the same segments; inside ``stored_programs.use`` its trace is
+    written once and a new function object of the same code reads it back instead of tracing (``loaded``)."""
+    from jaxmocap import stored_programs
+
+    model = body.full25({"thigh_length": 0.47})
+    layout = flesh.surface_layout(model, total=300)
+    eager = flesh.surface_points(model, layout)
+    with stored_programs.use(tmp_path):
+        first = flesh.surface_points_compiled(model, layout)
+        again = stored_programs.stored_jit(flesh.surface_points_compiled.fn, static_argnames=("layout",))
+        second = again(model, layout)
+    assert first.segment == second.segment == eager.segment
+    for a in (first, second):
+        np.testing.assert_allclose(a.local, eager.local, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(a.normal, eager.normal, rtol=0, atol=1e-6)
+    assert len(list((tmp_path / stored_programs.FOLDER).glob("*.jaxexport"))) == 1
+    stored = next(iter(again._stored.values()))
+    assert (stored.loaded, stored.exported) == (1, 0)
+
+
 def test_interior_points_are_inside():
     model = body.full25()
     ip = flesh.interior_points(model, levels=3, around=4)
