@@ -206,8 +206,10 @@ def run(rounds: int, particles: int, repeats: int, log=print, against: str | Non
 
     jobs = {lw: (ll_bodytrack, ll_jaxmocap)}
     children = []
+    # the children's compilation cache, removed after the rounds
+    cache_dir = tempfile.TemporaryDirectory(prefix="vs_bodytrack_cache_")
+    cache = pathlib.Path(cache_dir.name)
     if auto:
-        cache = pathlib.Path(tempfile.mkdtemp(prefix="vs_bodytrack_cache_"))
         likelihood_in_new_process(particles, 1, cache)  # compiles into the cache
 
         def ll_child():
@@ -223,7 +225,10 @@ def run(rounds: int, particles: int, repeats: int, log=print, against: str | Non
                 lambda n=n, ly=ly, m=model: float(np.median(bt.bodytrack_frames(n, ly, model=m))),
                 lambda c=(n, ly): jm.frames(c),
             )
-    rows = bt.side_by_side(jobs, rounds, log)
+    try:
+        rows = bt.side_by_side(jobs, rounds, log)
+    finally:
+        cache_dir.cleanup()
     for row, child in zip([r for r in rows if r["what"] == AUTO], children, strict=True):
         row["threads"] = child["threads"]
     return rows, (against_table(jm, against, rounds, log) if against is not None else None)

@@ -192,8 +192,8 @@ class ParsecSetup:
         compiled (or read from the cache) in a thread while :meth:`start` runs (:mod:`jaxmocap.tracking.loop`,
         compiling ahead). The weighted start's state has the shapes and dtypes of ``filter.init``'s."""
         filt = self.make_filter(self.x0)
-        dt = jnp.float32
-        return filt, jax.eval_shape(lambda k: filt.init(k, jnp.zeros(31, dt), jnp.ones(31, dt)), key)
+        pose = jax.ShapeDtypeStruct(self.x0.shape, jnp.float32)  # x0 and σ_0 as the start passes them (_f32)
+        return filt, jax.eval_shape(filt.init, key, pose, pose)
 
     def start(self, filt, key, x0, spread, obs) -> State:
         """bodytrack's weighted initial set (:func:`weighted_start`)."""

@@ -8,9 +8,9 @@ the filter step (jitted **once**, with the filter as an argument, so that its da
 values, the likelihood's cue weights and λ — are not constants of the program: ``trace_count`` stays 1, or 0
 when the run reads the traced step back from disk, :mod:`jaxmocap.stored_programs`; the summary's
 ``compilations`` counts both ways of making it: 1), track-loss detection and re-initialisation, and incremental
-outputs (:mod:`jaxmocap.io.export`) with a resume checkpoint (``resume.npz``, :class:`jaxmocap.tracking.run_folder.Checkpoints`: at most once a second, and on every
-way out; a run killed by SIGKILL is resumed from its last checkpoint and tracks the frames after it again, to the
-same bits).
+outputs (:mod:`jaxmocap.io.export`) with a resume checkpoint (``resume.npz``,
+:class:`jaxmocap.tracking.run_folder.Checkpoints`: at most once a second, and on every way out; a run killed by
+SIGKILL is resumed from its last checkpoint and tracks the frames after it again, to the same bits).
 
 **Before the first frame** (:meth:`TrackingLoop._prepare`) the run takes the output folder's lock
 (:class:`jaxmocap.tracking.run_folder.RunLock`), checks the folder (:func:`~jaxmocap.tracking.run_folder.check_out`)
@@ -40,10 +40,10 @@ compiles it), so that its first track loss compiles nothing either.
 
 **No frame compiles.** Every frame has the first one's shapes, and whatever runs per frame is compiled once (the
 prediction is one program, :func:`jaxmocap.tracking.prediction.predict`; host arrays go to the device by
-``jax.device_put``, since ``jnp.asarray`` of a host array compiles a conversion per shape). The loop counts the programs its thread lowers
-(:class:`jaxmocap.tracking.compile_watch.CompileWatch`): a frame after the first that compiles has
-``compiled_programs`` in its record, the summary has their total (``compiled_after_first_frame``, 0), and the run
-warns.
+``jax.device_put``, since ``jnp.asarray`` of a host array compiles a conversion per shape). The loop counts the
+programs its thread lowers (:class:`jaxmocap.tracking.compile_watch.CompileWatch`): a frame after the first that
+compiles has ``compiled_programs`` in its record, the summary has their total (``compiled_after_first_frame``, 0),
+and the run warns.
 
 **Track loss.** ``q_t = −max_i log p(z | x_i)`` of the last layer (the energy of the best particle) is compared
 with its median ``q_ref`` over the first frames after the initialisation or the last re-initialisation (the
