@@ -46,6 +46,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxmocap.errors import MocapInputError
+from jaxmocap.transfer import to_device
 
 MAP_FIELDS = ("foreground", "edges", "edge_dt", "skin", "depth")
 """Per-view scalar maps ``(V, H, W)``."""
@@ -263,12 +264,12 @@ def make_observation(
         channels = 3 if name == "rgb" else None
         map_dtype = "float32" if (name == "depth" and dtype == "uint8") else dtype
         if name not in maps:
-            out[name] = jnp.asarray(empty_map(V, map_dtype, channels))
+            out[name] = to_device(empty_map(V, map_dtype, channels))
         elif map_dtype == "uint8":
-            out[name] = jnp.asarray(encode_map(maps[name], "uint8", unit=name in UNIT_FIELDS))
+            out[name] = to_device(encode_map(maps[name], "uint8", unit=name in UNIT_FIELDS))
         else:
             # float targets: copy the host array as it is (bytes stay bytes) and convert on the device
-            out[name] = _to_float_on_device(jnp.asarray(maps[name]), map_dtype, name in UNIT_FIELDS)
+            out[name] = _to_float_on_device(to_device(maps[name]), map_dtype, name in UNIT_FIELDS)
 
     K = int(max_blobs)
     b3 = np.zeros((K, 3), np.float32)
@@ -303,7 +304,7 @@ def make_observation(
         skin=out["skin"],
         depth=out["depth"],
         rgb=out["rgb"],
-        blobs3d=jnp.asarray(b3),
-        blob_conf=jnp.asarray(bc),
-        keypoints2d=jnp.asarray(kp),
+        blobs3d=to_device(b3),
+        blob_conf=to_device(bc),
+        keypoints2d=to_device(kp),
     )

@@ -58,6 +58,7 @@ from jaxmocap.geometry.body import EVAL_JOINTS, BodyModel
 from jaxmocap.geometry.body import trunk_segments as body_trunk
 from jaxmocap.io.mocap import matrix_to_euler
 from jaxmocap.stored_programs import stored_jit
+from jaxmocap.transfer import to_device
 
 _MARGIN = 0.98  # start points are pulled inside this fraction of each bounded range
 _FULL_TURN = 2.0 * math.pi - 1e-3
@@ -362,22 +363,22 @@ def fit_pose(
     """
     J = len(model.joint_names)
     dtype = model.lower.dtype
-    weights = jnp.ones(J, dtype) if weights is None else jnp.asarray(weights, dtype)
+    weights = to_device(np.ones(J, dtype)) if weights is None else to_device(weights, dtype)
     if mask is not None:
         weights = jnp.where(jnp.asarray(mask), weights, 0.0)
-    targets = jnp.asarray(targets, dtype)
-    x0 = root_init(model, targets, weights) if init is None else jnp.asarray(init, dtype)
-    free = jnp.ones(model.num_dofs, bool) if free is None else jnp.asarray(free, bool)
-    rest = model.rest_pose if prior_mean is None else jnp.asarray(prior_mean, dtype)
+    targets = to_device(targets, dtype)
+    x0 = root_init(model, targets, weights) if init is None else to_device(init, dtype)
+    free = to_device(np.ones(model.num_dofs, bool)) if free is None else to_device(free, bool)
+    rest = model.rest_pose if prior_mean is None else to_device(prior_mean, dtype)
     return _solve(
         model,
         targets,
         weights,
         x0,
-        jnp.asarray(prior_weight, dtype),
+        to_device(prior_weight, dtype),
         free,
         rest,
-        jnp.asarray(tol, dtype),
+        to_device(tol, dtype),
         maxiter,
     )
 

@@ -13,7 +13,8 @@ Body dimensions (limb lengths, radii) come from a small TOML body file so a subj
     torso_length = 0.50
     upper_arm_length = 0.29
 
-A model is built from its dimensions by pure ``jax.numpy`` code, so gradients flow to limb lengths and radii
+A model is built from its dimensions on the host (NumPy, then one copy of each array to the device) or, when a
+dimension is a tracer, with ``jax.numpy``, so gradients flow to limb lengths and radii
 (``jax.grad(lambda d: loss(full25(d)))``).
 
 Presets:
@@ -44,6 +45,7 @@ import numpy as np
 
 from jaxmocap.errors import MocapInputError, load_toml
 from jaxmocap.geometry import kinematics
+from jaxmocap.transfer import is_traced, to_device
 
 #: The 15 evaluation joints of Li & Kulić, in the order every output of the project uses.
 EVAL_JOINTS: tuple[str, ...] = (
@@ -222,12 +224,24 @@ DEFAULT_DIMENSIONS: dict[str, float] = {
 
 
 def _dim(dims: Mapping[str, object], key: str, side: str = ""):
-    """Look up ``side_key`` (``left_``/``right_``) then ``key`` in ``dims``, then the defaults."""
+    """Look up ``side_key`` (``left_``/``right_``) then ``key`` in ``dims``, then the defaults: a tracer as it is,
+    any other value as a NumPy scalar of JAX's default float (float32 unless ``jax_enable_x64``), so that a model
+    built from concrete dimensions is computed on the host with the arithmetic ``jax.numpy`` would do."""
     if side and f"{side}_{key}" in dims:
-        return jnp.asarray(dims[f"{side}_{key}"])
-    if key in dims:
-        return jnp.asarray(dims[key])
-    return jnp.asarray(DEFAULT_DIMENSIONS[key])
+        v = dims[f"{side}_{key}"]
+    elif key in dims:
+        v = dims[key]
+    else:
+        v = DEFAULT_DIMENSIONS[key]
+    return v if is_traced(v) else np.asarray(v, jax.dtypes.canonicalize_dtype(np.float64))
+
+
+def _stack(values, dtype):
+    """``values`` stacked along a new first axis as ``dtype``: with ``jax.numpy`` when one of them is traced,
+    else with NumPy (host arithmetic, no program staged; :mod:`jaxmocap.transfer`)."""
+    if any(is_traced(v) for v in values):
+        return jnp.stack([jnp.asarray(v, dtype) for v in values])
+    return np.stack([np.asarray(v, dtype) for v in values])
 
 
 class _Dof(NamedTuple):
@@ -238,7 +252,7 @@ class _Dof(NamedTuple):
     axis: np.ndarray
     lower: object
     upper: object
-    rest: jnp.ndarray
+    rest: object
 
 
 class _Segment(NamedTuple):
@@ -254,15 +268,19 @@ class _Segment(NamedTuple):
 
 @dataclasses.dataclass
 class _Builder:
-    """Accumulates segments and DOFs; arrays may be traced (they are built with jax.numpy)."""
+    """Accumulates segments and DOFs. Values stay NumPy unless a dimension is traced (then ``jax.numpy``, so that
+    gradients flow to the dimensions); :meth:`build` puts the model's arrays on the device."""
 
     dtype: object = jnp.float32
     segments: list[_Segment] = dataclasses.field(default_factory=list)
     dofs: list[_Dof] = dataclasses.field(default_factory=list)
     joints: dict = dataclasses.field(default_factory=dict)
 
+    def __post_init__(self):
+        self.dtype = jax.dtypes.canonicalize_dtype(self.dtype)
+
     def vec(self, *xs):
-        return jnp.stack([jnp.asarray(v, dtype=self.dtype) for v in xs])
+        return _stack(xs, self.dtype)
 
     def _index(self, segment: str) -> int:
         return [g.name for g in self.segments].index(segment)
@@ -272,7 +290,7 @@ class _Builder:
         first = len(self.dofs)
         for d in dofs:
             name_d, kind, axis, lo, hi = d[:5]
-            rest = jnp.asarray(d[5] if len(d) > 5 else 0.0, self.dtype)
+            rest = d[5] if len(d) > 5 else 0.0
             self.dofs.append(_Dof(name_d, kind, np.asarray(axis, dtype=np.float64), lo, hi, rest))
         parent_index = -1 if parent is None else self._index(parent)
         self.segments.append(_Segment(name, parent_index, tuple(range(first, len(self.dofs))), offset, shape))
@@ -299,20 +317,24 @@ class _Builder:
             kinds.append(kind)
             starts.append(zero if a is None else a)
             ends.append(zero if b is None else b)
-            r0.append(jnp.asarray(ra, self.dtype))
-            r1.append(jnp.asarray(rb, self.dtype))
+            r0.append(ra)
+            r1.append(rb)
+        dt = self.dtype
+        arrays = {
+            "rest_rotation": np.broadcast_to(np.eye(3, dtype=dt), (S, 3, 3)),
+            "offset": _stack([g.offset for g in segs], dt),
+            "dof_axis": np.stack([d.axis for d in dofs]).astype(dt),
+            "lower": _stack([d.lower for d in dofs], dt),
+            "upper": _stack([d.upper for d in dofs], dt),
+            "rest_pose": _stack([d.rest for d in dofs], dt),
+            "joint_point": _stack([self.joints[n][1] for n in names], dt),
+            "shape_start": _stack(starts, dt),
+            "shape_end": _stack(ends, dt),
+            "radius_start": _stack(r0, dt),
+            "radius_end": _stack(r1, dt),
+        }
         return BodyModel(
-            rest_rotation=jnp.broadcast_to(jnp.eye(3, dtype=self.dtype), (S, 3, 3)),
-            offset=jnp.stack([g.offset for g in segs]).astype(self.dtype),
-            dof_axis=jnp.asarray(np.stack([d.axis for d in dofs]), self.dtype),
-            lower=jnp.asarray([d.lower for d in dofs], self.dtype),
-            upper=jnp.asarray([d.upper for d in dofs], self.dtype),
-            rest_pose=jnp.stack([d.rest for d in dofs]),
-            joint_point=jnp.stack([self.joints[n][1] for n in names]).astype(self.dtype),
-            shape_start=jnp.stack(starts).astype(self.dtype),
-            shape_end=jnp.stack(ends).astype(self.dtype),
-            radius_start=jnp.stack(r0),
-            radius_end=jnp.stack(r1),
+            **{k: to_device(v, dt) for k, v in arrays.items()},
             name=model_name,
             topology=topology,
             joint_names=names,

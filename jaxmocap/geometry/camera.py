@@ -31,6 +31,7 @@ import numpy as np
 from jax.custom_derivatives import SymbolicZero
 
 from jaxmocap.stored_programs import stored_jit
+from jaxmocap.transfer import to_device
 
 __all__ = [
     "Rig",
@@ -86,10 +87,10 @@ class Rig:
         dtype = jnp.result_type(float) if dtype is None else dtype
         return dataclasses.replace(
             self,
-            K=jnp.asarray(self.K, dtype),
-            dist=jnp.asarray(self.dist, dtype),
-            R=jnp.asarray(self.R, dtype),
-            t=jnp.asarray(self.t, dtype),
+            K=to_device(self.K, dtype),
+            dist=to_device(self.dist, dtype),
+            R=to_device(self.R, dtype),
+            t=to_device(self.t, dtype),
         )
 
 

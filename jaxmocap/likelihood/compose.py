@@ -11,8 +11,7 @@ way.
 
 Evaluation (:meth:`Likelihood.batch`, what the filters call):
 
-1. ``prepare``: everything that depends on the observation only (masked depth, packed colours, foreground
-   samples) is computed once per call;
+1. ``prepare``: what depends on the observation only (masked depth, packed colours, foreground samples), once;
 2. geometry per particle (:meth:`Likelihood.geometry`): FK, flesh points (run by run of points on one segment,
    straight into camera coordinates), projection, facing test, one shared nearest-pixel index per sample set and
    the visible index through which one gather reads a colour and whether the sample is seen, computed once for all
@@ -53,6 +52,7 @@ from jaxmocap.features.observation import Observation
 from jaxmocap.geometry import body, camera, flesh, kinematics
 from jaxmocap.likelihood import cues, maps
 from jaxmocap.likelihood import partition as part_mod
+from jaxmocap.transfer import to_device
 
 #: Li & Kulić's base A of ``w = A^(−d)`` (eq. 4): weight ``k`` on a [0, 1] energy is ``λ = k ln A``.
 LI_KULIC_BASE = 100.0
@@ -180,10 +180,10 @@ class Likelihood:
             model=model,
             rig=rig.to_jax(dtype),
             surface=flesh.surface_points_compiled(model, layout),
-            view_weights=jnp.asarray(w, dtype),
-            schedule=jnp.asarray(lam, dtype),
+            view_weights=to_device(w, dtype),
+            schedule=to_device(lam, dtype),
             references=(None,) * C,
-            cue_weights=jnp.asarray([c.weight for c in cue_list], dtype),
+            cue_weights=to_device([c.weight for c in cue_list], dtype),
             cues=cue_list,
             contour_points=contour_points,
             chunk_size=int(chunk_size),

@@ -26,6 +26,7 @@ from jaxmocap.io.subject import subject_box
 from jaxmocap.likelihood import cues as cues_mod
 from jaxmocap.likelihood.coverage import silhouette_samples
 from jaxmocap.tracking.options import FOREGROUNDS
+from jaxmocap.transfer import to_device
 
 __all__ = [
     "ADAPTIVE_SHADOW",
@@ -229,7 +230,7 @@ class FeatureBuilder:
             f = self.extractor.config.downsample
             kp = np.asarray(fd.keypoints, np.float32).copy()
             kp[..., :2] = np.where(kp[..., 2:3] > 0, (kp[..., :2] + 0.5) / f - 0.5, 0.0)
-            obs = obs._replace(keypoints2d=jnp.asarray(kp))
+            obs = obs._replace(keypoints2d=to_device(kp))
         masks = host_masks(self.extractor.last_masks, obs.foreground.shape) if obs.has("foreground") else None
         if self.coverage:
             V, M = len(fd.images), self.num_samples
@@ -238,5 +239,5 @@ class FeatureBuilder:
             if masks is not None:
                 for v in range(V):
                     uv[v], w[v] = silhouette_samples(masks[v], M)
-            obs = obs._replace(silhouette=jnp.asarray(uv), silhouette_w=jnp.asarray(w))
-        return TrackObservation(obs, jnp.zeros(dof, jnp.float32), jnp.asarray(False)), masks
+            obs = obs._replace(silhouette=to_device(uv), silhouette_w=to_device(w))
+        return TrackObservation(obs, to_device(np.zeros(dof, np.float32)), to_device(np.False_)), masks

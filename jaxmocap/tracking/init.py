@@ -23,6 +23,7 @@ from jaxmocap.geometry import camera
 from jaxmocap.io import export
 from jaxmocap.io.keypoints import KEYPOINT_INDEX
 from jaxmocap.stored_programs import stored_jit
+from jaxmocap.transfer import to_device
 
 __all__ = [
     "KEYPOINT_OF",
@@ -64,9 +65,7 @@ def silhouette_centroid(rig: camera.Rig, masks: np.ndarray | None, min_pixels: i
         wts.append(1.0 if ok else 0.0)
     if sum(wts) < 2:
         return None
-    X = camera.triangulate(
-        rig.to_jax(jnp.float32), jnp.asarray(uv, jnp.float32), jnp.asarray(wts, jnp.float32)
-    )
+    X = camera.triangulate(rig.to_jax(jnp.float32), to_device(uv, jnp.float32), to_device(wts, jnp.float32))
     X = np.asarray(X, np.float64)
     return X if np.all(np.isfinite(X)) else None
 
@@ -82,7 +81,7 @@ def root_translation_dofs(model) -> list[int]:
 def move_root_over(model, x: np.ndarray, point: np.ndarray) -> np.ndarray:
     """``x`` with its root translated horizontally so that the model's mean joint lies above ``point``."""
     x = np.asarray(x, np.float64).copy()
-    J = np.asarray(joint_positions(model, jnp.asarray(x, model.offset.dtype)), np.float64)
+    J = np.asarray(joint_positions(model, to_device(x, model.offset.dtype)), np.float64)
     shift = np.zeros(3)
     shift[:2] = point[:2] - J.mean(axis=0)[:2]
     trans = root_translation_dofs(model)
@@ -123,14 +122,10 @@ def keypoint_pose(
             Y[i] = targets[n]
     if np.sum(np.all(np.isfinite(Y), axis=1)) < 4:
         return None
-    # device_put, not jnp.asarray: a host array's conversion compiles a program of its own per shape, and the first
+    # to_device, not jnp.asarray: a host array's conversion stages a program of its own per shape, and the first
     # re-initialisation from a previous pose (the only call with ``init``) would compile it on a new frame
     dt = np.dtype(model.offset.dtype)
-    fit = ik.fit_pose(
-        model,
-        jnp.asarray(Y, dt),
-        init=None if init is None else jax.device_put(np.asarray(init, dt)),
-    )
+    fit = ik.fit_pose(model, to_device(Y, dt), init=None if init is None else to_device(init, dt))
     x = np.asarray(fit.state, np.float64)
     if not np.all(np.isfinite(x)):
         return None
@@ -177,7 +172,7 @@ def _depth_misfits(model, rig, X: np.ndarray, depth) -> np.ndarray:
     valid readings in the 5×5 pixels around the joint's projection (joints outside the image or without a
     reading are left out)."""
     idx = [model.joint_names.index(n) for n in DEPTH_JOINTS if n in model.joint_names]
-    uv, z = (np.asarray(a, np.float64) for a in _project_with_depth(rig, jnp.asarray(X[idx], jnp.float32)))
+    uv, z = (np.asarray(a, np.float64) for a in _project_with_depth(rig, to_device(X[idx], jnp.float32)))
     out = []
     for v, d in enumerate(depth):
         if d is None:
@@ -211,12 +206,12 @@ def reprojection_fit(
     centre = np.asarray(camera.camera_centres(rig), np.float64)[0]
     trans = root_translation_dofs(model)
 
-    uv_j, w_j = jnp.asarray(uv, dtype), jnp.asarray(w, dtype)
+    uv_j, w_j = to_device(uv, dtype), to_device(w, dtype)
 
     def fitted(x0):
         """``(state, cost, depth misfits)`` of a fit from ``x0`` (cost inf when it fails)."""
         xf, X, cost = (
-            np.asarray(a, np.float64) for a in _fit_from(model, rig, uv_j, w_j, jnp.asarray(x0, dtype))
+            np.asarray(a, np.float64) for a in _fit_from(model, rig, uv_j, w_j, to_device(x0, dtype))
         )
         if not (np.all(np.isfinite(xf)) and np.isfinite(cost)):
             return xf, np.inf, np.zeros(0)
@@ -225,7 +220,7 @@ def reprojection_fit(
 
     def along_ray(x0, factor):
         x0 = x0.copy()
-        X0 = np.asarray(_joints(model, jnp.asarray(x0, dtype)), np.float64)[0]
+        X0 = np.asarray(_joints(model, to_device(x0, dtype)), np.float64)[0]
         x0[trans] += (factor - 1.0) * (X0 - centre)
         return x0
 
@@ -237,7 +232,7 @@ def reprojection_fit(
                 best, best_cost, best_dz = xf, cost, dz
     if best_dz.size and len(trans) == 3:
         # the depth readings' median misfit, taken out along the ray, and fitted once more
-        root = np.asarray(_joints(model, jnp.asarray(best, dtype)), np.float64)[0]
+        root = np.asarray(_joints(model, to_device(best, dtype)), np.float64)[0]
         dist = float(np.linalg.norm(root - centre))
         xf, cost, _ = fitted(along_ray(best, 1.0 - float(np.median(best_dz)) / max(dist, 1e-6)))
         if cost < best_cost:
@@ -313,7 +308,7 @@ def initial_state(
                 "--init groundtruth needs a sequence with groundtruth.npz",
             )
         dt = model.offset.dtype
-        targets = jnp.asarray(ik.select_joints(model, gt[t0]), dt)
+        targets = to_device(ik.select_joints(model, gt[t0]), dt)
         x = np.asarray(ik.fit_pose(model, targets).state, np.float64)
         if np.all(np.isfinite(x)):
             return x, 0.5, "groundtruth"

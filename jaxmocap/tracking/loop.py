@@ -96,6 +96,14 @@ __all__ = ["MAX_SEED", "LossTracker", "TrackingLoop", "layer_records"]
 MAX_SEED = 2**32 - 1
 
 
+@jax.jit
+def _frame_keys(seed, t):
+    """Frame ``t``'s keys: ``k = fold_in(key(seed), t)`` for the filter step, ``fold_in(k, 1)`` for the weighted
+    start and ``fold_in(k, 2)`` for a re-initialisation; one program for every frame (the eager calls stage four)."""
+    k = jax.random.fold_in(jax.random.key(seed), t)
+    return k, jax.random.fold_in(k, 1), jax.random.fold_in(k, 2)
+
+
 class LossTracker:
     """Track-loss bookkeeping (module docstring): the quality reference ``q_ref`` and its window ``q_hist``, the
     run of bad frames ``lost_run``, the last good estimate and the last two ``(frame, estimate)`` (the velocity)."""
@@ -283,8 +291,8 @@ class TrackingLoop:
         )
 
     def _key(self, t: int, purpose: int = 0):
-        k = jax.random.fold_in(jax.random.key(int(self.o.seed)), int(t))
-        return k if purpose == 0 else jax.random.fold_in(k, purpose)
+        """Frame ``t``'s key for ``purpose`` 0 (the step), 1 (the weighted start) or 2 (a re-initialisation)."""
+        return _frame_keys(np.uint32(self.o.seed), np.int32(t))[purpose]
 
     # -- the loop -----------------------------------------------------------------------------------------------
 

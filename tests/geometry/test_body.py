@@ -204,3 +204,31 @@ def test_registered_presets():
         body.build("test_wing_model")
     with pytest.raises(ValueError, match="built-in"):
         body.register_preset("full25", native)
+
+
+@pytest.mark.parametrize("name", ["upper9", "full25", "full32"])
+def test_concrete_dimensions_build_on_the_host_and_match_the_traced_build(caplog, name):
+    """A model of concrete dimensions is computed in NumPy and copied (no program staged: a warm tracker's set-up
+    would read each from the compilation cache); the same dimensions traced build the same arrays with jax.numpy."""
+    import logging
+
+    dims = {"thigh_length": 0.47, "left_forearm_length": 0.21, "torso_radius_top": 0.17, "neck_length": 0.09}
+    caplog.clear()
+    with caplog.at_level(logging.WARNING), jax.log_compiles(True):
+        m = body.build(name, dims)
+    assert not [r.getMessage() for r in caplog.records if r.getMessage().startswith("Compiling ")]
+    traced = jax.jit(lambda d: body.build(name, d))({k: jnp.float32(v) for k, v in dims.items()})
+    leaves, traced_leaves = jax.tree.leaves(m), jax.tree.leaves(traced)
+    assert len(leaves) == len(traced_leaves) == 11
+    for a, b in zip(leaves, traced_leaves, strict=True):
+        assert isinstance(a, jax.Array) and a.dtype == b.dtype == np.float32 and a.shape == b.shape
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-7, atol=1e-8)
+    # the dimensions land where the closed form puts them: the left forearm 0.21, the right one the default
+    J = np.asarray(body.joint_positions(m, m.rest_pose))
+    ix = body.EVAL_JOINTS.index
+    np.testing.assert_allclose(np.linalg.norm(J[ix("left_wrist")] - J[ix("left_elbow")]), 0.21, rtol=1e-6)
+    np.testing.assert_allclose(
+        np.linalg.norm(J[ix("right_wrist")] - J[ix("right_elbow")]),
+        body.DEFAULT_DIMENSIONS["forearm_length"],
+        rtol=1e-6,
+    )
