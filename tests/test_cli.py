@@ -1,5 +1,6 @@
 """The ``jaxmocap`` command: calibration conversion round-trips; bad input is one message and exit status 2."""
 
+import os
 import subprocess
 import sys
 
@@ -36,3 +37,30 @@ def test_bad_input_is_one_line_and_status_2(tmp_path):
     assert r.returncode == 2
     assert "broken.toml" in r.stderr and "Traceback" not in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
+
+
+def test_the_command_exits_with_mains_status_its_output_and_its_exit_handlers(tmp_path, data_dir):
+    """``jaxmocap.cli.run`` (the console script and ``python -m jaxmocap.cli``) leaves through ``os._exit``: what
+    ``main`` printed still reaches a pipe (block-buffered: lost without the flush), the ``atexit`` handlers still
+    run, and the status is ``main``'s, 0 or 2."""
+    script = (
+        "import atexit, sys\n"
+        "from jaxmocap import cli\n"
+        "atexit.register(lambda: print('exit handler ran', file=sys.stderr))\n"
+        "sys.argv = ['jaxmocap', *sys.argv[1:]]\n"
+        "cli.run()\n"
+        "print('not reached')\n"
+    )
+    calib = str(data_dir / "calib" / "parsec" / "CALIB")
+    # a pipe's buffering as users have it
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}
+    kw = dict(capture_output=True, text=True, env=env)
+    ok = subprocess.run([sys.executable, "-c", script, "calib", "show", calib], **kw)
+    assert ok.returncode == 0, ok.stderr
+    names = calibration.load_calibration(calib).names
+    assert all(n in ok.stdout for n in names)
+    assert "exit handler ran" in ok.stderr and "not reached" not in ok.stdout
+    bad = tmp_path / "broken.toml"
+    bad.write_text("[cam_1]\nmatrix = [[1, 0], \n")
+    r = subprocess.run([sys.executable, "-c", script, "calib", "show", str(bad)], **kw)
+    assert r.returncode == 2 and "broken.toml" in r.stderr and "exit handler ran" in r.stderr

@@ -43,6 +43,20 @@ def _figure(size):
     return fig
 
 
+def _stacked(fig, n: int = 3) -> list:
+    """``n`` panels stacked on one time axis: its tick labels on the bottom panel only, at most five ticks on each
+    value axis (every tick is a line and a text object to build and draw: most of a picture's time)."""
+    from matplotlib.ticker import MaxNLocator
+
+    axes = [fig.add_subplot(n, 1, 1)]
+    axes += [fig.add_subplot(n, 1, k + 1, sharex=axes[0]) for k in range(1, n)]
+    for ax in axes:
+        ax.yaxis.set_major_locator(MaxNLocator(5))
+    for ax in axes[:-1]:
+        ax.tick_params(labelbottom=False)
+    return axes
+
+
 def _save(fig, path) -> None:
     """Save ``fig`` as PNG atomically (a torn picture is never left behind)."""
     from jaxmocap.io.export import atomic_write_bytes
@@ -96,7 +110,7 @@ def _gap_spans(ax, t: np.ndarray, mask: np.ndarray, colour: str, label: str | No
 def plot_trajectories(raw: dict, smoothed: dict | None, path: str | os.PathLike) -> None:
     """``trajectories.png`` (module docstring) of ``poses.npz`` arrays ``raw`` and ``poses_smoothed.npz``."""
     fig = _figure((8.0, 6.0))
-    axes = [fig.add_subplot(3, 1, k + 1) for k in range(3)]
+    axes = _stacked(fig)
     names = [n for n in _TRAJECTORY_JOINTS if np.any(np.isfinite(raw["joints"][:, EVAL_JOINTS.index(n)]))]
     colours = {n: f"C{k}" for k, n in enumerate(names)}
     for k, ax in enumerate(axes):
@@ -181,7 +195,7 @@ def plot_quality(records: list[dict], path: str | os.PathLike) -> None:
     survival = np.asarray([nan(s.get("survival_rate")) for s in last])
     ess = np.asarray([nan(s.get("ess")) for s in last])
     fig = _figure((8.0, 6.0))
-    ax1, ax2, ax3 = (fig.add_subplot(3, 1, k, sharex=None) for k in (1, 2, 3))
+    ax1, ax2, ax3 = _stacked(fig)
     ax1.plot(f, loglik, color="tab:blue", lw=1.2)
     ax1.set_ylabel("best log-likelihood", fontsize=8)
     ax2.plot(f, survival, color="tab:green", lw=1.2)
