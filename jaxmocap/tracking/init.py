@@ -71,7 +71,7 @@ def silhouette_centroid(rig: camera.Rig, masks: np.ndarray | None, min_pixels: i
 
 
 #: ``joint_positions(model, x) -> (J, 3)``, compiled.
-joint_positions = jax.jit(body_mod.joint_positions)
+joint_positions = stored_jit(body_mod.joint_positions)
 
 
 def root_translation_dofs(model) -> list[int]:
@@ -162,8 +162,8 @@ def _fit_from(model, rig, uv, w, x0):
     return xf, X, jnp.sum(w * jnp.sum(r**2, axis=-1))
 
 
-_joints = jax.jit(ik.model_joints)
-_project_with_depth = jax.jit(camera.project_with_depth)
+_joints = stored_jit(ik.model_joints)
+_project_with_depth = stored_jit(camera.project_with_depth)
 
 
 def _depth_misfits(model, rig, X: np.ndarray, depth) -> np.ndarray:
