@@ -68,10 +68,11 @@ def relax_gc() -> None:
     Tracing and lowering a JAX program allocates hundreds of thousands of short-lived objects, and with CPython's
     thresholds (700, 10, 10) the collector ran about 400 young and 35 middle collections in a warm one-frame PARSEC
     run, and a few full ones, each walking the hundreds of thousands of objects that JAX's and the package's modules
-    hold: 0.2–0.27 s of a 2.2 s run, 12 s of the 129 s of ``tests/tracking/test_tracker.py``. The objects a JAX
-    trace creates are freed by reference counting, not by the collector, so collecting less often frees the same
-    memory a little later. Full collections keep their own rule (when a quarter of the long-lived objects is new).
-    For applications (the command line, the test suite); importing the package never changes the collector.
+    hold: 0.2–0.27 s of a 2.2 s run, 9–12 s of the 110–129 s of ``tests/tracking/test_tracker.py`` (0.06–0.09 s
+    and 3.5 s with these). Most objects of a trace are freed by reference counting when it ends; the collector only
+    frees reference cycles, and with these thresholds it frees them a little later. Full collections keep their own
+    rule (when a quarter of the long-lived objects is new). For applications (the command line, the test suite):
+    importing the package never changes the collector.
     """
     import gc
 
