@@ -22,6 +22,12 @@ from typing import NamedTuple
 
 import numpy as np
 
+from jaxmocap import host
+
+# every benchmark runs as an application of its own: the garbage collector's thresholds of the command line
+# (tracing JAX programs under CPython's own thresholds spent 8-10 % of the time in collections)
+host.relax_gc()
+
 BENCH = pathlib.Path(__file__).resolve().parent
 ROOT = BENCH.parent
 RESULTS = BENCH / "results"
