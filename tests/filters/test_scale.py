@@ -50,6 +50,7 @@ def _problem():
 _SUBPROCESS = textwrap.dedent(
     """
     import json
+    from jaxmocap import host; host.relax_gc()  # the suite's garbage-collector thresholds (tests/conftest.py)
     import jax, jax.numpy as jnp, numpy as np
     from tests.filters.test_scale import D, N, _RUN, _problem, _filters
     from jaxmocap.filters import sharding as scale
@@ -192,6 +193,7 @@ def test_bad_input():
 _MULTIPROCESS = textwrap.dedent(
     """
     import json, sys
+    from jaxmocap import host; host.relax_gc()  # the suite's garbage-collector thresholds (tests/conftest.py)
     import jax
     jax.distributed.initialize(sys.argv[1], num_processes=2, process_id=int(sys.argv[2]))
     import jax.numpy as jnp, numpy as np
