@@ -212,3 +212,23 @@ def test_a_busy_process_is_measured_and_leaves_fewer_threads(monkeypatch):
     assert record["other_busy_cpus"] >= 0.5 and record["interval_s"] >= host.MIN_INTERVAL_S
     assert record["threads"] == host.auto_cpu_threads(record["other_busy_cpus"], cpus)
     assert chosen == (None if record["threads"] >= cpus else record["threads"])
+
+
+def test_commands_set_the_collectors_thresholds_imports_do_not(data_dir):
+    """``gc.get_threshold()`` in fresh processes: unchanged by importing the package's modules, then
+    :data:`jaxmocap.host.GC_THRESHOLDS` once a command has run (``jaxmocap.cli.main``)."""
+    script = (
+        "import gc, sys\n"
+        "before = gc.get_threshold()\n"
+        "import jaxmocap, jaxmocap.cli, jaxmocap.tracking.tracker, jaxmocap.parsec\n"
+        "print(before == gc.get_threshold())\n"
+        "jaxmocap.cli.main(['calib', 'show', sys.argv[1]])\n"
+        "print(list(gc.get_threshold()))\n"
+    )
+    calib = str(data_dir / "calib" / "parsec" / "CALIB")
+    r = subprocess.run([sys.executable, "-c", script, calib], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.strip().splitlines()
+    assert lines[0] == "True"
+    assert lines[-1] == str(list(host.GC_THRESHOLDS))
+    assert host.GC_THRESHOLDS[0] > 700
