@@ -11,7 +11,6 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 
-import jax.numpy as jnp
 import numpy as np
 
 from jaxmocap.choices import ANNEALED, FILTERS, GRADIENT_FILTERS, PARTITIONED
@@ -22,6 +21,7 @@ from jaxmocap.filters.icondensation import ICondensation
 from jaxmocap.filters.partitioned import Partitioned, hierarchical
 from jaxmocap.filters.sir import SIR
 from jaxmocap.geometry import body as body_mod
+from jaxmocap.transfer import to_device
 
 __all__ = [
     "ANNEALED",
@@ -154,14 +154,14 @@ def make_filter(
     counts = partition_counts(model, name, num_particles, groups)
     groups = partition_groups(model) if groups is None else tuple(tuple(int(i) for i in g) for g in groups)
     dt = model.offset.dtype
-    std = jnp.asarray(std, dt)
+    std = to_device(std, dt)
     span = np.asarray(model.upper) - np.asarray(model.lower)
     circular = tuple(bool(a and s >= 2 * math.pi - 1e-3) for a, s in zip(model.angular, span, strict=True))
     common = dict(lower=model.lower, upper=model.upper, circular=circular)
     L = int(num_layers)
     scales = tuple(0.25 ** (l / (L - 1)) for l in range(L)) if L > 1 else (1.0,)
     centre = _proposal_centre
-    prior = dict(prior_mean=jnp.asarray(prior_mean, dt), prior_std=jnp.asarray(prior_std, dt))
+    prior = dict(prior_mean=to_device(prior_mean, dt), prior_std=to_device(prior_std, dt))
     prior.update(importance or {})
     if annealing is not None and annealing.num_layers != L:
         raise ValueError(f"the annealing schedule has {annealing.num_layers} layers, the filter {L}")

@@ -44,6 +44,7 @@ from jaxmocap.tracking.options import TrackOptions
 from jaxmocap.tracking.outputs import check_export_options
 from jaxmocap.tracking.progress import warn
 from jaxmocap.tracking.setup import frame_range
+from jaxmocap.transfer import to_device
 
 __all__ = [
     "DEFAULT_LAYERS",
@@ -87,9 +88,8 @@ def weighted_start(filt: APF, loglik: Callable, key, x0, std, obs) -> State:
 
 
 def _f32(x) -> jax.Array:
-    """A host array as a float32 device array by a transfer (``jnp.asarray`` with a dtype runs a compiled
-    conversion program)."""
-    return jax.device_put(np.asarray(x, np.float32), may_alias=False)
+    """A host array as a float32 device array, copied without a program (:func:`jaxmocap.transfer.to_device`)."""
+    return to_device(x, np.float32)
 
 
 def _unsupported(o) -> list[str]:
@@ -237,7 +237,7 @@ class ParsecSetup:
         return body_mod.joint_positions(self.model, parsec.to_metres(est_mm))
 
     def joints(self, x_m: np.ndarray) -> np.ndarray:
-        return np.asarray(self._joints(jnp.asarray(x_m, jnp.float32)), np.float64)
+        return np.asarray(self._joints(_f32(x_m)), np.float64)
 
     def description(self) -> dict:
         return {

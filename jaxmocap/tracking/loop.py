@@ -40,10 +40,10 @@ compiles it), so that its first track loss compiles nothing either.
 
 **No frame compiles.** Every frame has the first one's shapes, and whatever runs per frame is compiled once (the
 prediction is one program, :func:`jaxmocap.tracking.prediction.predict`; host arrays go to the device by
-``jax.device_put``, since ``jnp.asarray`` of a host array compiles a conversion per shape). The loop counts the
-programs its thread lowers (:class:`jaxmocap.tracking.compile_watch.CompileWatch`): a frame after the first that
-compiles has ``compiled_programs`` in its record, the summary has their total (``compiled_after_first_frame``, 0),
-and the run warns.
+:func:`jaxmocap.transfer.to_device`, since ``jnp.asarray`` of a host array compiles a conversion per shape). The
+loop counts the programs its thread lowers (:class:`jaxmocap.tracking.compile_watch.CompileWatch`): a frame after
+the first that compiles has ``compiled_programs`` in its record, the summary has their total
+(``compiled_after_first_frame``, 0), and the run warns.
 
 **Track loss.** ``q_t = −max_i log p(z | x_i)`` of the last layer (the energy of the best particle) is compared
 with its median ``q_ref`` over the first frames after the initialisation or the last re-initialisation (the
@@ -89,6 +89,7 @@ from jaxmocap.tracking import interrupts, outputs, resources, run_folder
 from jaxmocap.tracking.compile_watch import CompileWatch
 from jaxmocap.tracking.prediction import angle_difference, predict, velocity_dofs
 from jaxmocap.tracking.progress import CompileNotice, Progress, warn
+from jaxmocap.transfer import to_device
 
 __all__ = ["MAX_SEED", "LossTracker", "TrackingLoop", "layer_records"]
 
@@ -287,7 +288,7 @@ class TrackingLoop:
         diffusion spread."""
         dt = self.setup.model.offset.dtype
         return self.filter.init(
-            self._key(t, 2), jnp.asarray(mean, dt), jnp.asarray(self.o.reinit_widen * self.setup.std, dt)
+            self._key(t, 2), to_device(mean, dt), to_device(self.o.reinit_widen * self.setup.std, dt)
         )
 
     def _key(self, t: int, purpose: int = 0):
@@ -342,7 +343,7 @@ class TrackingLoop:
             setup.set_references(x0, first)
         self._make_filter(x0)
         dt = setup.model.offset.dtype
-        state = State(*(jnp.asarray(ck[k], dt) for k in ("particles", "log_weights", "estimate")))
+        state = State(*(to_device(ck[k], dt) for k in ("particles", "log_weights", "estimate")))
         return start, x0, state, LossTracker.from_checkpoint(self.o, ck)
 
     def _prefetch(self, i: int):
@@ -454,7 +455,7 @@ class TrackingLoop:
         moving = velocity_dofs(model, getattr(o, "velocity_dofs", "translation"))
         flags = getattr(self.filter, "circular", None)
         circular = np.zeros(model.num_dofs, bool) if flags is None else np.asarray(flags, bool)
-        circular_dev = jax.device_put(circular)
+        circular_dev = to_device(circular)
         frames = setup.frames
         stats = {
             "reinitialisations": 0,
@@ -528,10 +529,8 @@ class TrackingLoop:
                 absent = getattr(setup, "person_absent", None)  # a detector that sees nobody
                 unseen = absent is not None and bool(absent(fd))
                 no_person = no_person or unseen
-                if centre is not None:  # device_put: host arrays converted by jnp.asarray compile a program
-                    tobs = tobs._replace(
-                        centre=jax.device_put(np.asarray(centre, np.float32)), valid=jax.device_put(np.True_)
-                    )
+                if centre is not None:
+                    tobs = tobs._replace(centre=to_device(centre, np.float32), valid=to_device(np.True_))
                 # damped constant-velocity prediction of the DOFs of ``velocity_dofs`` (zero without two frames
                 # before), then full turns taken out: one program on every frame (``prediction.predict``)
                 hist = loss.hist
@@ -544,9 +543,7 @@ class TrackingLoop:
                 # (an exported program) returns committed arrays, which a program lowers differently from
                 # uncommitted ones; so predict, and the step compiled ahead from shapes, see one kind of argument
                 state = jax.device_put(state, _device())
-                state = state._replace(
-                    particles=predict(state.particles, jax.device_put(v.astype(dt)), circular_dev)
-                )
+                state = state._replace(particles=predict(state.particles, to_device(v, dt), circular_dev))
                 if not self._compiled:  # a resumed run compiles at its first readable frame
                     self._compile(t, state, tobs)
                 state, info, joints = self._step(self.filter, self._key(t), state, tobs)

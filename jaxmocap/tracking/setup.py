@@ -56,6 +56,7 @@ from jaxmocap.tracking.options import (
 from jaxmocap.tracking.outputs import check_export_options
 from jaxmocap.tracking.progress import warn
 from jaxmocap.tracking.refine import REFINE_ROBUST_PX, KeypointRefiner, refine_pairs
+from jaxmocap.transfer import to_device
 
 __all__ = ["ObservationLoglik", "TrackSetup", "frame_range", "observation_loglik"]
 
@@ -503,7 +504,7 @@ class TrackSetup:
         lik = self.likelihood
         if lik.needs_references:
             dt = self.model.offset.dtype
-            self.likelihood = lik.with_references(jnp.asarray(x0, dt), first.image)
+            self.likelihood = lik.with_references(to_device(x0, dt), first.image)
 
     @property
     def needs_references(self) -> bool:
@@ -558,7 +559,7 @@ class TrackSetup:
         """The initial set: ``filter.init(key, x0, spread · Δ)``."""
         dt = self.model.offset.dtype
         del obs
-        return filt.init(key, jnp.asarray(x0, dt), jnp.asarray(spread * self.std, dt))
+        return filt.init(key, to_device(x0, dt), to_device(spread * self.std, dt))
 
     # -- frames -------------------------------------------------------------------------------------------------
 
@@ -712,7 +713,7 @@ class TrackSetup:
     def joints(self, x: np.ndarray) -> np.ndarray:
         """``(J, 3)`` joints of the written state ``x``."""
         return np.asarray(
-            init_mod.joint_positions(self.model, jnp.asarray(x, self.model.offset.dtype)), np.float64
+            init_mod.joint_positions(self.model, to_device(x, self.model.offset.dtype)), np.float64
         )
 
     def description(self) -> dict:
