@@ -442,9 +442,15 @@ def test_single_particle_function_agrees_with_the_batch(pdata, loglik_fn, corner
         assert (float(t.edge_samples), float(t.inside_samples)) == (ne.sum(), ni.sum())
         assert float(t.edge_error) == pytest.approx(ssd.sum() / 255.0**2 / ne.sum(), rel=1e-6)
         assert float(t.inside_error) == pytest.approx(bg.sum() / ni.sum(), rel=1e-6)
-    # a batch larger than max_batch is evaluated in equal chunks (3 of 3 here, padded): the same values
+    # a batch larger than max_batch is evaluated in equal chunks (3 of 3 here, padded): the same values, bit for bit
+    # as a rule; but the chunked program is another XLA program, and in one ordering of the suite's files (which
+    # share compiled programs between processes) one particle of eight came out 7.7e-5 apart, float32 rounding
+    # moving a projected sample across a pixel border: at most one particle, by at most one edge sample's share of
+    # the error (1 / 800, the least edge sample count asserted above)
     chunked = jax.jit(pl.make_loglik_batch(pdata["shape"], pdata["cams"], pl.Config(max_batch=3)))
-    np.testing.assert_array_equal(np.asarray(chunked(X, obs)), ll)
+    got = np.asarray(chunked(X, obs))
+    np.testing.assert_allclose(got, ll, rtol=0, atol=1.0 / 800)
+    assert np.sum(got != ll) <= 1
     # a new frame does not recompile
     n = loglik_fn._cache_size()
     loglik_fn(X, _obs(pdata, 1))
