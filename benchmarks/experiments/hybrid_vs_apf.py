@@ -670,7 +670,10 @@ def main(argv=None) -> str:
             if (work / "ratio" / f"{key_of(clip[0])}.json").exists():
                 return  # measured in the clip's first process
             load = os.getloadavg()[0]
-            r200, r5 = gradient_cost_ratio(sc, 200), gradient_cost_ratio(sc, 5)
+            # a quick run (a smoke run) measures the 5-particle ratio only: each size traces and compiles both
+            # programs again (7–8 s)
+            r200 = float("nan") if a.quick else gradient_cost_ratio(sc, 200)
+            r5 = gradient_cost_ratio(sc, 5)
             print(f"value-and-gradient / forward cost: {r200:.2f} (200 particles), {r5:.2f} (5)", flush=True)
             save_json(work / "ratio" / f"{key_of(clip[0])}.json", dict(ratio200=r200, ratio5=r5, load=load))
 

@@ -470,32 +470,37 @@ def test_colour_cues_track_with_first_frame_references_and_resume(sequence, tmp_
         "foreground,edge_distance,colour_histogram,skin,blobs3d,homogeneous_colour,colour_template,coverage"
     )
     opts = dict(model="upper14", filter="apf", cues=cues, particles=30, layers=2, frames="0:4", seed=3)
-    full = tracker.Tracker(SequenceSource(sequence), tmp_path / "full", TrackOptions(**opts), quiet=True)
-    full.run()
-    assert (
-        not full.compiled_ahead and full.trace_count == 1
-    )  # the references are structure: compiled after them
-    lik = full.likelihood
-    names = [c.name for c in lik.cues]
-    assert all(lik.references[names.index(n)] is not None for n in ("colour_histogram", "colour_template"))
-    first = full._observe(0)[0].image
-    for f in ("rgb", "skin", "blobs3d"):
-        assert first.has(f), f
-    x0 = jnp.asarray(np.load(tmp_path / "full" / "resume.npz")["x0"], jnp.float32)
-    e = lik.energies(x0, first)
-    assert float(e[names.index("colour_template")]) == pytest.approx(0.0, abs=1e-5)  # √(… + ε) per sample
+    # the runs keep their traced steps as the command line does: the interrupted and the resumed run read the
+    # first run's back instead of tracing the same step again
+    with stored_programs.use(tmp_path / "programs"):
+        full = tracker.Tracker(SequenceSource(sequence), tmp_path / "full", TrackOptions(**opts), quiet=True)
+        full.run()
+        assert (
+            not full.compiled_ahead and full.trace_count == 1
+        )  # the references are structure: compiled after them
+        lik = full.likelihood
+        names = [c.name for c in lik.cues]
+        assert all(
+            lik.references[names.index(n)] is not None for n in ("colour_histogram", "colour_template")
+        )
+        first = full._observe(0)[0].image
+        for f in ("rgb", "skin", "blobs3d"):
+            assert first.has(f), f
+        x0 = jnp.asarray(np.load(tmp_path / "full" / "resume.npz")["x0"], jnp.float32)
+        e = lik.energies(x0, first)
+        assert float(e[names.index("colour_template")]) == pytest.approx(0.0, abs=1e-5)  # √(… + ε) per sample
 
-    part = tmp_path / "part"
-    src = _Interrupting(SequenceSource(sequence), stop=3)
-    with pytest.raises(KeyboardInterrupt):
-        tracker.Tracker(src, part, TrackOptions(**opts), quiet=True).run()
-    done = export.load_poses(part)["frame_index"]
-    assert 0 < len(done) < 4
-    src = _Interrupting(SequenceSource(sequence), stop=-1)  # the same input description, no Ctrl-C
-    tracker.Tracker(src, part, TrackOptions(**opts, resume=True), quiet=True).run()
-    a, b = export.load_poses(tmp_path / "full"), export.load_poses(part)
-    np.testing.assert_array_equal(a["frame_index"], b["frame_index"])
-    np.testing.assert_allclose(a["state"], b["state"], rtol=0, atol=1e-6)
+        part = tmp_path / "part"
+        src = _Interrupting(SequenceSource(sequence), stop=3)
+        with pytest.raises(KeyboardInterrupt):
+            tracker.Tracker(src, part, TrackOptions(**opts), quiet=True).run()
+        done = export.load_poses(part)["frame_index"]
+        assert 0 < len(done) < 4
+        src = _Interrupting(SequenceSource(sequence), stop=-1)  # the same input description, no Ctrl-C
+        tracker.Tracker(src, part, TrackOptions(**opts, resume=True), quiet=True).run()
+        a, b = export.load_poses(tmp_path / "full"), export.load_poses(part)
+        np.testing.assert_array_equal(a["frame_index"], b["frame_index"])
+        np.testing.assert_allclose(a["state"], b["state"], rtol=0, atol=1e-6)
 
 
 def test_hybrid_filter_of_the_tracker_takes_the_fast_gradient_path(sequence, monkeypatch):
