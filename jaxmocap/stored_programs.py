@@ -11,11 +11,16 @@ builds from everything the function closes over (the body's dimensions, the cali
 together with the shapes and dtypes of the arguments' leaves. The first call of a configuration traces ``fn`` as
 usual, exports it with :func:`jax.export.export` (StableHLO, serialised) and writes it to ``DIR/<key>.jaxexport``;
 a later process with the same key deserialises it and calls it: no Python tracing, no lowering of the function's
-body; the compilation of the deserialised module is then found in the persistent cache as usual. The key is a
+body. Beside it the program's **executable** is kept once XLA has compiled it (``DIR/<key>.<machine>.xlaexec``,
+:class:`_Program`; ``<machine>``: :func:`machine_digest`, the jaxlib version, XLA's flags and options and the host
+CPU): a process that finds it runs it without lowering the exported module (and without importing SciPy, which
+JAX's export does for its LAPACK kernels) or hashing it for the compilation cache. A warm one-frame PARSEC run
+took 1.72–1.77 s with the executables, 2.14–2.17 s without (three runs each, idle). Without an executable the
+deserialised module is lowered and compiled, the compilation found in the persistent cache as usual. The key is a
 SHA-256 of the tag, the leaves' abstract values, the backend, the JAX and jaxlib versions and the source of this
 package (every ``.py`` file of ``jaxmocap``), so any change of the code or of the versions traces afresh. A file
 that cannot be read back (torn, from another JAX) is ignored and written again. Deleting the directory is always
-safe. A stored file is loaded as code (the output tree is a pickle, the program StableHLO), like the executables
+safe. A stored file is loaded as code (the trees are pickles, the program StableHLO, the executable machine code), like the executables
 of JAX's own cache beside it: keep the cache directory private to its user.
 
 Use it only where the tag covers every value the function closes over: a constant missing from the tag would
@@ -44,6 +49,7 @@ import inspect
 import os
 import pathlib
 import pickle
+import platform
 import threading
 from collections.abc import Callable, Iterator
 
@@ -218,7 +224,15 @@ class StoredJit:
         # arrays (outputs of other programs) lowers to; left unspecified, such arguments add their sharding to
         # the module, another program to compile (the tracker's step compiled twice in a cold run: 2 × 17–20 s)
         one = jax.sharding.SingleDeviceSharding(jax.devices()[0])
-        return jax.jit(exp.call, in_shardings=one, compiler_options=self.compiler_options or None), out_tree
+
+        # named for the executables it keeps (the module's name is part of JAX's cache key: an executable from
+        # the cache cannot be kept, :class:`_Program`, and a cache filled before executables were kept holds this
+        # program under another name)
+        def stored_executable(*xs):
+            return exp.call(*xs)
+
+        jitted = jax.jit(stored_executable, in_shardings=one, compiler_options=self.compiler_options or None)
+        return _Program(jitted, path, self.compiler_options), out_tree
 
     def _export(self, in_tree, leaves):
         trees = []
@@ -241,7 +255,7 @@ class StoredJit:
     def _cache_size(self) -> int:
         """The compiled variants in memory (as ``jax.jit``'s): the plain jit's and those of the stored programs."""
         stored = (hit for hit in self._programs.values() if hit is not None)
-        return self._jit._cache_size() + sum(call._cache_size() for call, _ in stored)
+        return self._jit._cache_size() + sum(program.compiled is not None for program, _ in stored)
 
     def lower(self, *args):
         """The lowered program for ``args`` (``.compile()`` it), as ``jax.jit(fn).lower`` (of the flat exported
@@ -251,6 +265,57 @@ class StoredJit:
             return self._jit.lower(*args)
         call, _, leaves = prog
         return call.lower(*leaves)
+
+
+class _Program:
+    """A stored program's compiled executable, kept on disk beside it (``<key>.<machine>.xlaexec``).
+
+    The first call (or ``lower(...).compile()``) of a process reads the executable back when this machine and
+    configuration wrote it (:func:`machine_digest`): no lowering of the exported program, no look-up in the
+    compilation cache (which needs the lowered module's hash). Otherwise it lowers ``jitted`` (the exported
+    program's call, whose compilation the persistent cache may still hold), compiles it and writes the
+    executable — only when XLA really compiled it: an executable that JAX's persistent cache supplied serialises
+    without its kernels in jaxlib 0.10 (read back, its first call fails with "Function … not found"), so after a
+    cache hit nothing is written and the run keeps the cache's executable (:func:`_cache_hits`). A program that
+    calls LAPACK gets JAX's LAPACK kernels initialised before its executable is read back (lowering does that);
+    where that is not possible the executable is not used. An executable that cannot be read back is compiled
+    and written again."""
+
+    def __init__(self, jitted, path: pathlib.Path, compiler_options: dict):
+        self.jitted = jitted
+        self.path = path.with_name(f"{path.stem}.{machine_digest(compiler_options)}.xlaexec")
+        self.compiled = None
+        self._lock = threading.Lock()
+
+    def compile(self, leaves):
+        """The compiled executable for arguments shaped like ``leaves`` (arrays or ``jax.ShapeDtypeStruct``)."""
+        with self._lock:
+            if self.compiled is None:
+                compiled = _read_executable(self.path)
+                if compiled is None:
+                    lowered = self.jitted.lower(*leaves)
+                    hits = _cache_hits()
+                    compiled = lowered.compile()
+                    if _cache_hits() == hits:  # compiled by XLA in this thread, not read from JAX's cache
+                        _write_executable(self.path, compiled, "lapack_" in lowered.as_text())
+                self.compiled = compiled
+            return self.compiled
+
+    def __call__(self, *leaves):
+        return self.compile(leaves)(*leaves)
+
+    def lower(self, *leaves):
+        return _Lowered(self, leaves)
+
+
+class _Lowered:
+    """What :meth:`StoredJit.lower` gives for a stored program: ``.compile()`` returns its executable."""
+
+    def __init__(self, program: _Program, leaves):
+        self.program, self.leaves = program, leaves
+
+    def compile(self):
+        return self.program.compile(self.leaves)
 
 
 class _StoredFunction:
@@ -332,19 +397,114 @@ def _read(path: pathlib.Path):
         return None
 
 
+_EXEC_MAGIC = b"JXMC1\n"
+_HITS = threading.local()
+_LISTENING = []
+
+
+def _count_hit(event: str, **kwargs) -> None:
+    if event == "/jax/compilation_cache/cache_hits":
+        _HITS.n = getattr(_HITS, "n", 0) + 1
+
+
+def _cache_hits() -> int:
+    """How many programs this thread has read from JAX's persistent compilation cache so far (counted from the
+    first call: a listener of JAX's monitoring events, which JAX calls in the compiling thread)."""
+    if not _LISTENING:
+        _LISTENING.append(_count_hit)
+        jax.monitoring.register_event_listener(_count_hit)
+    return getattr(_HITS, "n", 0)
+
+
+@functools.cache
+def _cpu_identity() -> str:
+    """The host CPU's model and instruction-set flags (an XLA CPU executable is machine code for them)."""
+    try:
+        text = pathlib.Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return f"{platform.machine()} {platform.processor()}"
+    lines = [
+        ln for ln in text.splitlines() if ln.split(":")[0].strip() in ("model name", "flags", "Features")
+    ]
+    return "\n".join(sorted(set(lines)))
+
+
+def machine_digest(compiler_options: dict | None = None) -> str:
+    """16 hex digits naming what a compiled executable depends on beyond its program: the jaxlib version, the
+    backend's platform and version, the device kind, ``XLA_FLAGS``, the compiler options and the host CPU's
+    model and flags."""
+    dev = jax.devices()[0]
+    parts = (
+        f"jaxlib {importlib.metadata.version('jaxlib')}",
+        f"{dev.platform} {dev.client.platform_version} {dev.device_kind}",
+        os.environ.get("XLA_FLAGS", ""),
+        repr(sorted((compiler_options or {}).items())),
+        _cpu_identity(),
+    )
+    return hashlib.sha256("\0".join(parts).encode()).hexdigest()[:16]
+
+
+def _lapack_ready() -> bool:
+    """Initialise JAX's CPU LAPACK kernels (lowering a LAPACK operation does; a program read back as an
+    executable is not lowered); False where this JAX has no such hook."""
+    try:
+        from jax._src.lax import linalg
+
+        linalg.initialize_lapack()
+        return True
+    except Exception:  # noqa: BLE001 (another JAX: the program is compiled from its export instead)
+        return False
+
+
+def _read_executable(path: pathlib.Path):
+    """The ``jax.stages.Compiled`` stored at ``path``, or None when it is missing, unreadable or unusable."""
+    try:
+        blob = path.read_bytes()
+    except OSError:
+        return None
+    try:
+        if not blob.startswith(_EXEC_MAGIC):
+            return None
+        body = blob[len(_EXEC_MAGIC) :]
+        if body[0] and not _lapack_ready():
+            return None
+        n = int.from_bytes(body[1:9], "little")
+        in_tree, out_tree = pickle.loads(body[9 : 9 + n])
+        from jax.experimental import serialize_executable
+
+        return serialize_executable.deserialize_and_load(body[9 + n :], in_tree, out_tree)
+    except Exception:  # noqa: BLE001 (torn, foreign or stale: compiled and written again)
+        return None
+
+
+def _write_executable(path: pathlib.Path, compiled, lapack: bool) -> None:
+    """Write ``compiled`` (atomically, as :func:`_write`); an executable that cannot be serialised is not kept."""
+    try:
+        from jax.experimental import serialize_executable
+
+        data, in_tree, out_tree = serialize_executable.serialize(compiled)
+        trees = pickle.dumps((in_tree, out_tree))
+        _write_atomic(path, _EXEC_MAGIC + bytes([lapack]) + len(trees).to_bytes(8, "little") + trees + data)
+    except Exception:  # noqa: BLE001 (not serialisable, read-only or full disk: compiled again next time)
+        pass
+
+
 def _write(path: pathlib.Path, exp, out_tree) -> None:
     """Write atomically (a torn file is never left under the final name); a failure only costs the next start."""
     try:
         tree = pickle.dumps(out_tree)
-        data = _MAGIC + len(tree).to_bytes(8, "little") + tree + bytes(exp.serialize())
-        path.parent.mkdir(parents=True, exist_ok=True)
-        # one temporary name per process and thread: two threads of a run (the step compiled ahead, the
-        # re-initialisation warmed) may store the same program at once
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
-        try:
-            tmp.write_bytes(data)
-            os.replace(tmp, path)
-        finally:
-            tmp.unlink(missing_ok=True)
+        _write_atomic(path, _MAGIC + len(tree).to_bytes(8, "little") + tree + bytes(exp.serialize()))
     except Exception:  # noqa: BLE001 (unpicklable output tree, read-only or full disk: run as usual)
         pass
+
+
+def _write_atomic(path: pathlib.Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    # one temporary name per process and thread: two threads of a run (the step compiled ahead, the
+    # re-initialisation warmed) may store the same program at once
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
+    try:
+        tmp.write_bytes(data)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)

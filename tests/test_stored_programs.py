@@ -232,3 +232,126 @@ def test_compiler_options_reach_xla_stored_or_not(tmp_path, tag):
     got, want = loops(*args), jax.jit(Counted())(*args)
     for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(want), strict=True):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6)
+
+
+class _Lowerings:
+    """Counts the programs JAX lowers to MLIR and those XLA compiles while it is active (JAX's monitoring
+    events)."""
+
+    def __enter__(self):
+        self.lowered = self.compiled = 0
+
+        def listen(event, duration, **kwargs):
+            self.lowered += event == "/jax/core/compile/jaxpr_to_mlir_module_duration"
+            self.compiled += event == "/jax/core/compile/backend_compile_duration"
+
+        self._listen = listen
+        jax.monitoring.register_event_duration_secs_listener(listen)
+        return self
+
+    def __exit__(self, *exc):
+        jax.monitoring.unregister_event_duration_listener(self._listen)
+
+
+def test_a_new_instance_runs_the_kept_executable_without_lowering(tmp_path):
+    """Beside each stored program its compiled executable is kept (``.xlaexec``); a new instance (as a new process)
+    runs it without lowering or compiling anything, with the results of jax.jit bit for bit, and ``lower`` /
+    ``compile`` give that executable (with XLA's memory estimate)."""
+    args = _args()
+    want = jax.jit(Counted())(*args)
+    first = StoredJit(Counted(), "tag", folder=tmp_path)
+    _equal(first(*args), want)
+    assert len(list(tmp_path.glob("*.xlaexec"))) == 1
+    second = StoredJit(Counted(), "tag", folder=tmp_path)
+    with _Lowerings() as seen:
+        _equal(second(*args), want)
+        compiled = second.lower(*args).compile()
+    assert (seen.lowered, seen.compiled, second.loaded) == (0, 0, 1)
+    assert resources.program_bytes(compiled) is not None
+    _equal(compiled(*jax.tree.leaves(args)), jax.tree.leaves(want))
+    # the same arguments lowered ahead from their shapes (the tracker's compilation ahead) find it as well
+    third = StoredJit(Counted(), "tag", folder=tmp_path)
+    shapes = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), args)
+    with _Lowerings() as seen:
+        third.lower(*shapes).compile()
+        _equal(third(*args), want)
+    assert (seen.lowered, seen.compiled) == (0, 0)
+
+
+def test_an_executable_read_from_the_compilation_cache_is_not_kept(tmp_path):
+    """An executable that JAX's persistent cache supplied is not written (jaxlib 0.10 serialises it without its
+    kernels): after a cache hit the run uses it and keeps none; a real compilation then keeps one again."""
+    assert jax.config.jax_compilation_cache_dir  # the suite's (tests/conftest.py)
+    before = jax.config.jax_persistent_cache_min_compile_time_secs
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    try:
+        args = _args(n=7)
+        want = jax.jit(Counted())(*args)
+        StoredJit(Counted(), "cache hit", folder=tmp_path)(*args)  # compiled by XLA: kept, and in JAX's cache
+        (kept,) = tmp_path.glob("*.xlaexec")
+        kept.unlink()
+        again = StoredJit(Counted(), "cache hit", folder=tmp_path)
+        hits = stored_programs._cache_hits()
+        _equal(again(*args), want)
+        assert stored_programs._cache_hits() == hits + 1 and not list(tmp_path.glob("*.xlaexec"))
+    finally:
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", before)
+
+
+def test_a_torn_executable_is_compiled_and_written_again(tmp_path):
+    args = _args(n=4)
+    want = jax.jit(Counted())(*args)
+    StoredJit(Counted(), "tag", folder=tmp_path)(*args)
+    (kept,) = tmp_path.glob("*.xlaexec")
+    whole = kept.read_bytes()
+    kept.write_bytes(whole[: len(whole) // 2])
+    with _Lowerings() as seen:
+        _equal(StoredJit(Counted(), "tag", folder=tmp_path)(*args), want)
+    assert seen.lowered == 1
+    with _Lowerings() as seen:
+        _equal(StoredJit(Counted(), "tag", folder=tmp_path)(*args), want)
+    assert seen.lowered == 0
+
+
+def test_the_machine_digest_names_the_flags_options_and_cpu(monkeypatch):
+    base = stored_programs.machine_digest({"xla_cpu_use_fusion_emitters": False})
+    assert base == stored_programs.machine_digest({"xla_cpu_use_fusion_emitters": False})
+    assert base != stored_programs.machine_digest({"xla_cpu_use_fusion_emitters": True})
+    monkeypatch.setenv("XLA_FLAGS", "--xla_backend_optimization_level=1 --xla_cpu_enable_fast_math=false")
+    assert base != stored_programs.machine_digest({"xla_cpu_use_fusion_emitters": False})
+    monkeypatch.setattr(stored_programs, "_cpu_identity", lambda: "another CPU")
+    assert base != stored_programs.machine_digest({"xla_cpu_use_fusion_emitters": False})
+
+
+_SOLVE = """
+import sys, pathlib, jax, jax.numpy as jnp, numpy as np
+from jaxmocap.stored_programs import StoredJit
+s = StoredJit(lambda a, b: jnp.linalg.solve(a, b), "solve", folder=pathlib.Path(sys.argv[1]))
+a = np.array([[4.0, 1.0, 0.0], [1.0, 3.0, 1.0], [0.0, 1.0, 2.0]], np.float32)
+x = s(jnp.asarray(a), jnp.asarray([1.0, 2.0, 3.0], jnp.float32))
+print(s.loaded, s.exported, " ".join(repr(float(v)) for v in np.asarray(x)))
+"""
+
+
+def test_an_executable_that_calls_lapack_runs_in_a_new_process(tmp_path):
+    """A program with LAPACK calls (a linear solve), read back as an executable in a process that lowered
+    nothing: JAX's LAPACK kernels are initialised first (without that the call crashes the process), and the
+    solution is NumPy's."""
+    import subprocess
+    import sys
+
+    runs = [
+        subprocess.run(
+            [sys.executable, "-c", _SOLVE, str(tmp_path)], capture_output=True, text=True, timeout=300
+        )
+        for _ in range(2)
+    ]
+    for r in runs:
+        assert r.returncode == 0, r.stderr[-2000:]
+    (first,), (second,) = (r.stdout.split("\n")[:1] for r in runs)
+    assert first.split()[:2] == ["0", "1"] and second.split()[:2] == ["1", "0"]
+    assert len(list(tmp_path.glob("*.xlaexec"))) == 1
+    a = np.array([[4.0, 1.0, 0.0], [1.0, 3.0, 1.0], [0.0, 1.0, 2.0]])
+    want = np.linalg.solve(a, [1.0, 2.0, 3.0])
+    for line in (first, second):
+        np.testing.assert_allclose([float(v) for v in line.split()[2:]], want, rtol=1e-5)
