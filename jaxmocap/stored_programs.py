@@ -11,9 +11,11 @@ builds from everything the function closes over (the body's dimensions, the cali
 together with the shapes and dtypes of the arguments' leaves. The first call of a configuration traces ``fn`` as
 usual, exports it with :func:`jax.export.export` (StableHLO, serialised) and writes it to ``DIR/<key>.jaxexport``;
 a later process with the same key deserialises it and calls it: no Python tracing, no lowering of the function's
-body. Beside it the program's **executable** is kept once XLA has compiled it (``DIR/<key>.<machine>.xlaexec``,
-:class:`_Program`; ``<machine>``: :func:`machine_digest`, the jaxlib version, XLA's flags and options and the host
-CPU): a process that finds it runs it without lowering the exported module (and without importing SciPy, which
+body. Beside it the program's **executable** is kept once XLA has compiled it (``DIR/<program>.<machine>.xlaexec``,
+:class:`_Program`; ``<program>``: :func:`program_digest`, the exported StableHLO without its source locations, so
+that an edit of the package re-exports a program but finds its executable when the program is the same;
+``<machine>``: :func:`machine_digest`, the versions, XLA's flags and options and the host CPU): a process that
+finds it runs it without lowering the exported module (and without importing SciPy, which
 JAX's export does for its LAPACK kernels) or hashing it for the compilation cache. A warm one-frame PARSEC run
 took 1.72–1.77 s with the executables, 2.14–2.17 s without (three runs each, idle). Without an executable the
 deserialised module is lowered and compiled, the compilation found in the persistent cache as usual. The key is a
@@ -55,11 +57,11 @@ from collections.abc import Callable, Iterator
 
 import jax
 
-__all__ = ["StoredJit", "directory", "source_digest", "stored_jit", "use"]
+__all__ = ["StoredJit", "directory", "machine_digest", "program_digest", "source_digest", "stored_jit", "use"]
 
 #: The sub-folder of the compilation cache that holds the stored programs.
 FOLDER = "jaxmocap-exported"
-_MAGIC = b"JXMX1\n"
+_MAGIC = b"JXMX2\n"
 
 
 #: the folders of the enclosing :func:`use` blocks, innermost last (None: storing off in that block)
@@ -213,12 +215,13 @@ class StoredJit:
         path = folder / f"{self._key(structure, leaves)}.jaxexport"
         found = _read(path)
         if found is None:
-            found = self._export(in_tree, leaves)
+            exp, out_tree = self._export(in_tree, leaves)
+            found = exp, out_tree, program_digest(exp)
             _write(path, *found)
             self.exported += 1
         else:
             self.loaded += 1
-        exp, out_tree = found
+        exp, out_tree, digest = found
         # the exported program runs on one device: its arguments placed there explicitly, so that the program
         # lowered ahead from shapes (``lower`` with ``jax.ShapeDtypeStruct``) is the one a call with committed
         # arrays (outputs of other programs) lowers to; left unspecified, such arguments add their sharding to
@@ -232,7 +235,7 @@ class StoredJit:
             return exp.call(*xs)
 
         jitted = jax.jit(stored_executable, in_shardings=one, compiler_options=self.compiler_options or None)
-        return _Program(jitted, path, self.compiler_options), out_tree
+        return _Program(jitted, folder / f"{digest}.xlaexec", self.compiler_options), out_tree
 
     def _export(self, in_tree, leaves):
         trees = []
@@ -268,7 +271,8 @@ class StoredJit:
 
 
 class _Program:
-    """A stored program's compiled executable, kept on disk beside it (``<key>.<machine>.xlaexec``).
+    """A stored program's compiled executable, kept on disk beside it (``<program>.<machine>.xlaexec``:
+    :func:`program_digest`, :func:`machine_digest`).
 
     The first call (or ``lower(...).compile()``) of a process reads the executable back when this machine and
     configuration wrote it (:func:`machine_digest`): no lowering of the exported program, no look-up in the
@@ -379,8 +383,24 @@ def stored_jit(fn: Callable | None = None, *, static_argnames: tuple[str, ...] =
     return _StoredFunction(fn, tuple(static_argnames))
 
 
+def program_digest(exp) -> str:
+    """32 hex digits of SHA-256 of the exported program's StableHLO without its locations (the source lines
+    it was traced from), as JAX's compilation cache keys a program: an edit that only moves lines re-exports the
+    program (the key holds the package's source) but finds its executable."""
+    text = exp.mlir_module()
+    try:
+        from jax._src.interpreters import mlir
+        from jax._src.lib.mlir import ir
+
+        with mlir.make_ir_context():
+            text = ir.Module.parse(text).operation.get_asm(enable_debug_info=False)
+    except Exception:  # noqa: BLE001 (another JAX: the text with its locations, a narrower key)
+        pass
+    return hashlib.sha256(text.encode()).hexdigest()[:32]
+
+
 def _read(path: pathlib.Path):
-    """``(Exported, output tree)`` from ``path``, or None when it is missing or unreadable."""
+    """``(Exported, output tree, program digest)`` from ``path``, or None when it is missing or unreadable."""
     try:
         blob = path.read_bytes()
     except OSError:
@@ -390,9 +410,9 @@ def _read(path: pathlib.Path):
             return None
         body = blob[len(_MAGIC) :]
         n = int.from_bytes(body[:8], "little")
-        out_tree = pickle.loads(body[8 : 8 + n])
+        out_tree, digest = pickle.loads(body[8 : 8 + n])
         exp = jax.export.deserialize(bytearray(body[8 + n :]))
-        return exp, out_tree
+        return exp, out_tree, digest
     except Exception:  # noqa: BLE001 (a torn or foreign file: traced and written again)
         return None
 
@@ -430,12 +450,12 @@ def _cpu_identity() -> str:
 
 
 def machine_digest(compiler_options: dict | None = None) -> str:
-    """16 hex digits naming what a compiled executable depends on beyond its program: the jaxlib version, the
-    backend's platform and version, the device kind, ``XLA_FLAGS``, the compiler options and the host CPU's
-    model and flags."""
+    """16 hex digits naming what a compiled executable depends on beyond its program: the JAX and jaxlib
+    versions, the backend's platform and version, the device kind, ``XLA_FLAGS``, the compiler options and the
+    host CPU's model and flags."""
     dev = jax.devices()[0]
     parts = (
-        f"jaxlib {importlib.metadata.version('jaxlib')}",
+        f"jax {jax.__version__} jaxlib {importlib.metadata.version('jaxlib')}",
         f"{dev.platform} {dev.client.platform_version} {dev.device_kind}",
         os.environ.get("XLA_FLAGS", ""),
         repr(sorted((compiler_options or {}).items())),
@@ -489,10 +509,10 @@ def _write_executable(path: pathlib.Path, compiled, lapack: bool) -> None:
         pass
 
 
-def _write(path: pathlib.Path, exp, out_tree) -> None:
+def _write(path: pathlib.Path, exp, out_tree, digest: str) -> None:
     """Write atomically (a torn file is never left under the final name); a failure only costs the next start."""
     try:
-        tree = pickle.dumps(out_tree)
+        tree = pickle.dumps((out_tree, digest))
         _write_atomic(path, _MAGIC + len(tree).to_bytes(8, "little") + tree + bytes(exp.serialize()))
     except Exception:  # noqa: BLE001 (unpicklable output tree, read-only or full disk: run as usual)
         pass

@@ -355,3 +355,26 @@ def test_an_executable_that_calls_lapack_runs_in_a_new_process(tmp_path):
     want = np.linalg.solve(a, [1.0, 2.0, 3.0])
     for line in (first, second):
         np.testing.assert_allclose([float(v) for v in line.split()[2:]], want, rtol=1e-5)
+
+
+def _twice_sine(x):
+    return 2.0 * jnp.sin(x)
+
+
+def test_an_edited_package_finds_the_executable_of_an_unchanged_program(tmp_path, monkeypatch):
+    """The executable is named by the program without its source locations (:func:`program_digest`): after an edit
+    of the package (another source digest: the program is traced and exported again) and for the same operations
+    traced from other source lines, the executable kept is run, not compiled again."""
+    x = jnp.linspace(0.0, 1.0, 5, dtype=jnp.float32)
+    want = StoredJit(_twice_sine, "tag", folder=tmp_path)(x)
+    monkeypatch.setattr(stored_programs, "source_digest", lambda: "edited")
+    elsewhere = lambda x: 2.0 * jnp.sin(x)  # noqa: E731 (the same program from another line)
+    for fn in (_twice_sine, elsewhere):
+        s = StoredJit(fn, f"tag {fn.__name__}", folder=tmp_path)
+        with _Lowerings() as seen:
+            got = s(x)
+        assert (s.exported, seen.compiled) == (1, 0)
+        _equal(got, want)
+    assert len(list(tmp_path.glob("*.jaxexport"))) == 3 and len(list(tmp_path.glob("*.xlaexec"))) == 1
+    a, b = (stored_programs._read(p)[0] for p in sorted(tmp_path.glob("*.jaxexport"))[:2])
+    assert a.mlir_module() != b.mlir_module()  # their locations differ
