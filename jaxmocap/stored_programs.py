@@ -283,7 +283,8 @@ class _Program:
     cache hit nothing is written and the run keeps the cache's executable (:func:`_cache_hits`). A program that
     calls LAPACK gets JAX's LAPACK kernels initialised before its executable is read back (lowering does that);
     where that is not possible the executable is not used. An executable that cannot be read back is compiled
-    and written again."""
+    and written again — unless JAX's cache holds the program (its last real compilation put it there): then the
+    run uses the cache's executable, as without this class, until that entry goes."""
 
     def __init__(self, jitted, path: pathlib.Path, compiler_options: dict):
         self.jitted = jitted

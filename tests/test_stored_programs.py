@@ -23,15 +23,35 @@ class Pair(NamedTuple):
 
 
 class Counted:
-    """A function of a key and a pytree, returning a pytree with a None leaf, that counts its traces."""
+    """A function of a key and a pytree, returning a pytree with a None leaf, that counts its traces; ``shift``: a
+    constant of its program (:func:`_fresh`: a program no compilation cache has seen)."""
 
-    def __init__(self):
+    def __init__(self, shift: float = 0.0):
         self.traces = 0
+        self.shift = shift
 
     def __call__(self, key, pair, scale):
         self.traces += 1
         noise = jax.random.normal(key, pair.a.shape)
-        return {"sum": Pair(jnp.cumsum(pair.a * scale) + noise, jnp.sin(pair.b)), "none": None}
+        return {"sum": Pair(jnp.cumsum(pair.a * scale) + noise + self.shift, jnp.sin(pair.b)), "none": None}
+
+
+@pytest.fixture
+def uncached():
+    """No program compiled during the test enters JAX's persistent compilation cache (the suite's, whatever its
+    threshold): every compilation of a new program is XLA's, so its executable is kept."""
+    before = jax.config.jax_persistent_cache_min_compile_time_secs
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1e9)
+    yield
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", before)
+
+
+def _fresh() -> float:
+    """A constant that makes a program new to JAX's persistent compilation cache, whatever earlier tests or runs
+    put there (an executable is kept only when XLA compiles it)."""
+    import uuid
+
+    return 1.0 + uuid.uuid4().int % 100_000 / 1e6
 
 
 def _args(n=5):
@@ -253,16 +273,16 @@ class _Lowerings:
         jax.monitoring.unregister_event_duration_listener(self._listen)
 
 
-def test_a_new_instance_runs_the_kept_executable_without_lowering(tmp_path):
+def test_a_new_instance_runs_the_kept_executable_without_lowering(tmp_path, uncached):
     """Beside each stored program its compiled executable is kept (``.xlaexec``); a new instance (as a new process)
     runs it without lowering or compiling anything, with the results of jax.jit bit for bit, and ``lower`` /
     ``compile`` give that executable (with XLA's memory estimate)."""
-    args = _args()
-    want = jax.jit(Counted())(*args)
-    first = StoredJit(Counted(), "tag", folder=tmp_path)
+    args, shift = _args(), _fresh()
+    want = jax.jit(Counted(shift))(*args)
+    first = StoredJit(Counted(shift), "tag", folder=tmp_path)
     _equal(first(*args), want)
     assert len(list(tmp_path.glob("*.xlaexec"))) == 1
-    second = StoredJit(Counted(), "tag", folder=tmp_path)
+    second = StoredJit(Counted(shift), "tag", folder=tmp_path)
     with _Lowerings() as seen:
         _equal(second(*args), want)
         compiled = second.lower(*args).compile()
@@ -270,7 +290,7 @@ def test_a_new_instance_runs_the_kept_executable_without_lowering(tmp_path):
     assert resources.program_bytes(compiled) is not None
     _equal(compiled(*jax.tree.leaves(args)), jax.tree.leaves(want))
     # the same arguments lowered ahead from their shapes (the tracker's compilation ahead) find it as well
-    third = StoredJit(Counted(), "tag", folder=tmp_path)
+    third = StoredJit(Counted(shift), "tag", folder=tmp_path)
     shapes = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), args)
     with _Lowerings() as seen:
         third.lower(*shapes).compile()
@@ -285,12 +305,12 @@ def test_an_executable_read_from_the_compilation_cache_is_not_kept(tmp_path):
     before = jax.config.jax_persistent_cache_min_compile_time_secs
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     try:
-        args = _args(n=7)
-        want = jax.jit(Counted())(*args)
-        StoredJit(Counted(), "cache hit", folder=tmp_path)(*args)  # compiled by XLA: kept, and in JAX's cache
+        args, shift = _args(n=7), _fresh()
+        want = jax.jit(Counted(shift))(*args)
+        StoredJit(Counted(shift), "cache hit", folder=tmp_path)(*args)  # compiled by XLA: kept, and cached
         (kept,) = tmp_path.glob("*.xlaexec")
         kept.unlink()
-        again = StoredJit(Counted(), "cache hit", folder=tmp_path)
+        again = StoredJit(Counted(shift), "cache hit", folder=tmp_path)
         hits = stored_programs._cache_hits()
         _equal(again(*args), want)
         assert stored_programs._cache_hits() == hits + 1 and not list(tmp_path.glob("*.xlaexec"))
@@ -298,18 +318,18 @@ def test_an_executable_read_from_the_compilation_cache_is_not_kept(tmp_path):
         jax.config.update("jax_persistent_cache_min_compile_time_secs", before)
 
 
-def test_a_torn_executable_is_compiled_and_written_again(tmp_path):
-    args = _args(n=4)
-    want = jax.jit(Counted())(*args)
-    StoredJit(Counted(), "tag", folder=tmp_path)(*args)
+def test_a_torn_executable_is_compiled_and_written_again(tmp_path, uncached):
+    args, shift = _args(n=4), _fresh()
+    want = jax.jit(Counted(shift))(*args)
+    StoredJit(Counted(shift), "tag", folder=tmp_path)(*args)
     (kept,) = tmp_path.glob("*.xlaexec")
     whole = kept.read_bytes()
     kept.write_bytes(whole[: len(whole) // 2])
     with _Lowerings() as seen:
-        _equal(StoredJit(Counted(), "tag", folder=tmp_path)(*args), want)
-    assert seen.lowered == 1
+        _equal(StoredJit(Counted(shift), "tag", folder=tmp_path)(*args), want)
+    assert seen.lowered == 1  # compiled again, and written: read back below
     with _Lowerings() as seen:
-        _equal(StoredJit(Counted(), "tag", folder=tmp_path)(*args), want)
+        _equal(StoredJit(Counted(shift), "tag", folder=tmp_path)(*args), want)
     assert seen.lowered == 0
 
 
@@ -337,12 +357,20 @@ def test_an_executable_that_calls_lapack_runs_in_a_new_process(tmp_path):
     """A program with LAPACK calls (a linear solve), read back as an executable in a process that lowered
     nothing: JAX's LAPACK kernels are initialised first (without that the call crashes the process), and the
     solution is NumPy's."""
+    import os
     import subprocess
     import sys
 
+    # without the suite's compilation cache: the solve is compiled by XLA in the first process (so kept) whatever
+    # the cache holds
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
     runs = [
         subprocess.run(
-            [sys.executable, "-c", _SOLVE, str(tmp_path)], capture_output=True, text=True, timeout=300
+            [sys.executable, "-c", _SOLVE, str(tmp_path)],
+            capture_output=True,
+            text=True,
+            timeout=300,
+            env=env,
         )
         for _ in range(2)
     ]
@@ -357,19 +385,22 @@ def test_an_executable_that_calls_lapack_runs_in_a_new_process(tmp_path):
         np.testing.assert_allclose([float(v) for v in line.split()[2:]], want, rtol=1e-5)
 
 
-def _twice_sine(x):
-    return 2.0 * jnp.sin(x)
+def _scaled_sine(c: float):
+    def scaled_sine(x):
+        return c * jnp.sin(x)
+
+    return scaled_sine
 
 
-def test_an_edited_package_finds_the_executable_of_an_unchanged_program(tmp_path, monkeypatch):
+def test_an_edited_package_finds_the_executable_of_an_unchanged_program(tmp_path, monkeypatch, uncached):
     """The executable is named by the program without its source locations (:func:`program_digest`): after an edit
     of the package (another source digest: the program is traced and exported again) and for the same operations
     traced from other source lines, the executable kept is run, not compiled again."""
-    x = jnp.linspace(0.0, 1.0, 5, dtype=jnp.float32)
-    want = StoredJit(_twice_sine, "tag", folder=tmp_path)(x)
+    x, c = jnp.linspace(0.0, 1.0, 5, dtype=jnp.float32), _fresh()
+    want = StoredJit(_scaled_sine(c), "tag", folder=tmp_path)(x)
     monkeypatch.setattr(stored_programs, "source_digest", lambda: "edited")
-    elsewhere = lambda x: 2.0 * jnp.sin(x)  # noqa: E731 (the same program from another line)
-    for fn in (_twice_sine, elsewhere):
+    elsewhere = lambda x: c * jnp.sin(x)  # noqa: E731 (the same program from another line)
+    for fn in (_scaled_sine(c), elsewhere):
         s = StoredJit(fn, f"tag {fn.__name__}", folder=tmp_path)
         with _Lowerings() as seen:
             got = s(x)
