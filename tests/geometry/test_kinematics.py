@@ -188,11 +188,12 @@ def test_transform_points_runs_and_gather_agree(monkeypatch):
     np.testing.assert_allclose(sliced, ref, atol=1e-5)
 
 
-@pytest.mark.parametrize("name", ["upper9", "full25", "full32", "parsec31"])
+@pytest.mark.parametrize("name", ["upper9", "full25", "parsec31"])
 def test_loop_and_written_out_fk_agree(name):
     """The two forms of segment_poses (loops on the CPU, written out elsewhere) give the same numbers, rest
     rotations (parsec31) and prismatic DOFs included, bit for bit with XLA's default code generation (the one users
-    run; the suite's compile-time flags, tests/conftest.py, fuse the two forms differently)."""
+    run; the suite's compile-time flags, tests/conftest.py, fuse the two forms differently). Three models, 9 to 31
+    DOFs; full32 (10 s of compilation at XLA's default level) has no joint type these lack."""
     if name == "parsec31":
         from jaxmocap.parsec.model import parsec31 as build
     else:
