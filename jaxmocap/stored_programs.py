@@ -15,14 +15,15 @@ body. Beside it the program's **executable** is kept once XLA has compiled it (`
 :class:`_Program`; ``<program>``: :func:`program_digest`, the exported StableHLO without its source locations, so
 that an edit of the package re-exports a program but finds its executable when the program is the same;
 ``<machine>``: :func:`machine_digest`, the versions, XLA's flags and options and the host CPU): a process that
-finds it runs it without lowering the exported module (and without importing SciPy, which
-JAX's export does for its LAPACK kernels) or hashing it for the compilation cache. A warm one-frame PARSEC run
-took 1.72–1.77 s with the executables, 2.14–2.17 s without (three runs each, idle). Without an executable the
-deserialised module is lowered and compiled, the compilation found in the persistent cache as usual. The key is a
-SHA-256 of the tag, the leaves' abstract values, the backend, the JAX and jaxlib versions and the source of this
-package (every ``.py`` file of ``jaxmocap``), so any change of the code or of the versions traces afresh. A file
-that cannot be read back (torn, from another JAX) is ignored and written again. Deleting the directory is always
-safe. A stored file is loaded as code (the trees are pickles, the program StableHLO, the executable machine code), like the executables
+finds it runs it without lowering the exported module, hashing it for the compilation cache or importing SciPy
+(which JAX's export does for its LAPACK kernels). A warm one-frame PARSEC run took 1.94 s with the executables
+against 2.18 s without (per-round ratio 0.94, beside a busy process 0.87;
+``benchmarks/perf/parsec_latency.py --against 7bb1c6a``). Without an executable the deserialised module is
+lowered and compiled, the compilation found in the persistent cache as usual. The key is a SHA-256 of the tag, the
+leaves' abstract values, the backend, the JAX and jaxlib versions and the source of this package (every ``.py``
+file of ``jaxmocap``), so any change of the code or of the versions traces afresh. A file that cannot be read back
+(torn, from another JAX) is ignored and written again. Deleting the directory is always safe. A stored file is
+loaded as code (the trees are pickles, the program StableHLO, the executable machine code), like the executables
 of JAX's own cache beside it: keep the cache directory private to its user.
 
 Use it only where the tag covers every value the function closes over: a constant missing from the tag would
