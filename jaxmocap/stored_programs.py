@@ -229,12 +229,14 @@ class StoredJit:
         # the module, another program to compile (the tracker's step compiled twice in a cold run: 2 × 17–20 s)
         one = jax.sharding.SingleDeviceSharding(jax.devices()[0])
 
-        # named for the executables it keeps (the module's name is part of JAX's cache key: an executable from
-        # the cache cannot be kept, :class:`_Program`, and a cache filled before executables were kept holds this
-        # program under another name)
+        # named for the executables it keeps and the threads of XLA's CPU pool (the module's name is part of JAX's
+        # cache key, the thread count is not, though XLA's code differs with it (:func:`machine_digest`): an
+        # executable from the cache cannot be kept, :class:`_Program`, and a cache filled before executables were
+        # kept, or by a process with another thread count, holds this program under another name)
         def stored_executable(*xs):
             return exp.call(*xs)
 
+        stored_executable.__name__ = stored_executable.__qualname__ = f"stored_executable_{_threads()}"
         jitted = jax.jit(stored_executable, in_shardings=one, compiler_options=self.compiler_options or None)
         return _Program(jitted, folder / f"{digest}.xlaexec", self.compiler_options), out_tree
 
@@ -451,10 +453,21 @@ def _cpu_identity() -> str:
     return "\n".join(sorted(set(lines)))
 
 
+def _threads() -> str:
+    """``"<n>threads"``: the threads of XLA's CPU pool (:func:`jaxmocap.host.cpu_threads`) when the default
+    backend is the CPU, else ``"accelerator"``."""
+    from jaxmocap import host
+
+    return f"{host.cpu_threads()}threads" if jax.default_backend() == "cpu" else "accelerator"
+
+
 def machine_digest(compiler_options: dict | None = None) -> str:
     """16 hex digits naming what a compiled executable depends on beyond its program: the JAX and jaxlib
-    versions, the backend's platform and version, the device kind, ``XLA_FLAGS``, the compiler options and the
-    host CPU's model and flags."""
+    versions, the backend's platform and version, the device kind, ``XLA_FLAGS``, the compiler options, the host
+    CPU's model and flags and the threads of XLA's CPU pool (:func:`jaxmocap.host.cpu_threads`: XLA's CPU code
+    differs with them — the PARSEC step's executable is 3 390 423 bytes compiled with one, 3 403 623 with two —
+    and the command line chooses one or two by load, ``--cpu-threads auto``; JAX's own cache key does not hold
+    them)."""
     dev = jax.devices()[0]
     parts = (
         f"jax {jax.__version__} jaxlib {importlib.metadata.version('jaxlib')}",
@@ -462,6 +475,7 @@ def machine_digest(compiler_options: dict | None = None) -> str:
         os.environ.get("XLA_FLAGS", ""),
         repr(sorted((compiler_options or {}).items())),
         _cpu_identity(),
+        _threads(),
     )
     return hashlib.sha256("\0".join(parts).encode()).hexdigest()[:16]
 

@@ -343,14 +343,21 @@ def test_a_torn_executable_is_compiled_and_written_again(tmp_path, uncached):
     assert seen.lowered == 0
 
 
-def test_the_machine_digest_names_the_flags_options_and_cpu(monkeypatch):
+def test_the_machine_digest_names_the_flags_options_cpu_and_threads(monkeypatch):
     base = stored_programs.machine_digest({"xla_cpu_use_fusion_emitters": False})
     assert base == stored_programs.machine_digest({"xla_cpu_use_fusion_emitters": False})
     assert base != stored_programs.machine_digest({"xla_cpu_use_fusion_emitters": True})
     monkeypatch.setenv("XLA_FLAGS", "--xla_backend_optimization_level=1 --xla_cpu_enable_fast_math=false")
     assert base != stored_programs.machine_digest({"xla_cpu_use_fusion_emitters": False})
     monkeypatch.setattr(stored_programs, "_cpu_identity", lambda: "another CPU")
-    assert base != stored_programs.machine_digest({"xla_cpu_use_fusion_emitters": False})
+    other_cpu = stored_programs.machine_digest({"xla_cpu_use_fusion_emitters": False})
+    assert base != other_cpu
+    from jaxmocap import host
+
+    threads = host.cpu_threads()
+    assert threads is None or threads >= 1  # XLA's pool has started (jax.devices() in the digest)
+    monkeypatch.setattr(host, "cpu_threads", lambda: (threads or 1) + 1)
+    assert stored_programs.machine_digest({"xla_cpu_use_fusion_emitters": False}) != other_cpu
 
 
 _SOLVE = """
@@ -429,3 +436,29 @@ def test_an_edited_package_finds_the_executable_of_an_unchanged_program(
     a, b = exported(_scaled_sine(c)), exported(elsewhere)
     assert a.mlir_module() != b.mlir_module()  # their source locations differ
     assert stored_programs.program_digest(a) == stored_programs.program_digest(b)
+
+
+def test_each_thread_count_keeps_its_own_executable(tmp_path, monkeypatch):
+    """XLA's CPU code differs with the threads of its pool, which JAX's cache key does not hold: a process with
+    another thread count (``--cpu-threads``) neither runs the executable kept by the first nor gets the first's
+    compilation from JAX's cache, but compiles and keeps its own."""
+    from jaxmocap import host
+
+    assert jax.config.jax_compilation_cache_dir  # the suite's (tests/conftest.py)
+    before = jax.config.jax_persistent_cache_min_compile_time_secs
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)  # every compilation enters the cache
+    try:
+        args, shift = _args(n=6), _fresh()
+        want = jax.jit(Counted(shift))(*args)
+        StoredJit(Counted(shift), "threads", folder=tmp_path)(*args)
+        assert len(list(tmp_path.glob("*.xlaexec"))) == 1
+        n = host.cpu_threads() or 1
+        monkeypatch.setattr(host, "cpu_threads", lambda: n + 1)
+        other = StoredJit(Counted(shift), "threads", folder=tmp_path)
+        hits = stored_programs._cache_hits()
+        with _Lowerings() as seen:
+            _equal(other(*args), want)
+        assert seen.compiled == 1 and stored_programs._cache_hits() == hits
+        assert len(list(tmp_path.glob("*.xlaexec"))) == 2
+    finally:
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", before)
