@@ -62,7 +62,7 @@ __all__ = ["StoredJit", "directory", "machine_digest", "program_digest", "source
 
 #: The sub-folder of the compilation cache that holds the stored programs.
 FOLDER = "jaxmocap-exported"
-_MAGIC = b"JXMX2\n"
+_MAGIC = b"JXMX3\n"
 
 
 #: the folders of the enclosing :func:`use` blocks, innermost last (None: storing off in that block)
@@ -217,12 +217,12 @@ class StoredJit:
         found = _read(path)
         if found is None:
             exp, out_tree = self._export(in_tree, leaves)
-            found = exp, out_tree, program_digest(exp)
-            _write(path, *found)
+            found = exp, (out_tree, *_program_facts(exp))
+            _write_file(path, _MAGIC, found[1], exp.serialize())
             self.exported += 1
         else:
             self.loaded += 1
-        exp, out_tree, digest = found
+        exp, (out_tree, digest, lapack) = found
         # the exported program runs on one device: its arguments placed there explicitly, so that the program
         # lowered ahead from shapes (``lower`` with ``jax.ShapeDtypeStruct``) is the one a call with committed
         # arrays (outputs of other programs) lowers to; left unspecified, such arguments add their sharding to
@@ -238,7 +238,7 @@ class StoredJit:
 
         stored_executable.__name__ = stored_executable.__qualname__ = f"stored_executable_{_threads()}"
         jitted = jax.jit(stored_executable, in_shardings=one, compiler_options=self.compiler_options or None)
-        return _Program(jitted, folder / f"{digest}.xlaexec", self.compiler_options), out_tree
+        return _Program(jitted, folder / f"{digest}.xlaexec", self.compiler_options, lapack), out_tree
 
     def _export(self, in_tree, leaves):
         trees = []
@@ -289,9 +289,10 @@ class _Program:
     and written again — unless JAX's cache holds the program (its last real compilation put it there): then the
     run uses the cache's executable, as without this class, until that entry goes."""
 
-    def __init__(self, jitted, path: pathlib.Path, compiler_options: dict):
+    def __init__(self, jitted, path: pathlib.Path, compiler_options: dict, lapack: bool):
         self.jitted = jitted
         self.path = path.with_name(f"{path.stem}.{machine_digest(compiler_options)}.xlaexec")
+        self.lapack = lapack  # the program calls LAPACK (:func:`_program_facts`)
         self.compiled = None
         self._lock = threading.Lock()
 
@@ -299,13 +300,12 @@ class _Program:
         """The compiled executable for arguments shaped like ``leaves`` (arrays or ``jax.ShapeDtypeStruct``)."""
         with self._lock:
             if self.compiled is None:
-                compiled = _read_executable(self.path)
+                compiled = _read_executable(self.path, self.lapack)
                 if compiled is None:
-                    lowered = self.jitted.lower(*leaves)
                     hits = _cache_hits()
-                    compiled = lowered.compile()
+                    compiled = self.jitted.lower(*leaves).compile()
                     if _cache_hits() == hits:  # compiled by XLA in this thread, not read from JAX's cache
-                        _write_executable(self.path, compiled, "lapack_" in lowered.as_text())
+                        _write_executable(self.path, compiled)
                 self.compiled = compiled
             return self.compiled
 
@@ -391,7 +391,14 @@ def program_digest(exp) -> str:
     """32 hex digits of SHA-256 of the exported program's StableHLO without its locations (the source lines
     it was traced from), as JAX's compilation cache keys a program: an edit that only moves lines re-exports the
     program (the key holds the package's source) but finds its executable."""
+    return _program_facts(exp)[0]
+
+
+def _program_facts(exp) -> tuple[str, bool]:
+    """``(program_digest(exp), whether the program calls LAPACK)``, from one print of its StableHLO (kept in the
+    ``.jaxexport`` file: a program read back never prints it)."""
     text = exp.mlir_module()
+    lapack = "lapack_" in text
     try:
         from jax._src.interpreters import mlir
         from jax._src.lib.mlir import ir
@@ -400,28 +407,37 @@ def program_digest(exp) -> str:
             text = ir.Module.parse(text).operation.get_asm(enable_debug_info=False)
     except Exception:  # noqa: BLE001 (another JAX: the text with its locations, a narrower key)
         pass
-    return hashlib.sha256(text.encode()).hexdigest()[:32]
+    return hashlib.sha256(text.encode()).hexdigest()[:32], lapack
 
 
-def _read(path: pathlib.Path):
-    """``(Exported, output tree, program digest)`` from ``path``, or None when it is missing or unreadable."""
+def _read_file(path: pathlib.Path, magic: bytes):
+    """``(header, payload)`` of a file :func:`_write_file` wrote with ``magic``; None when it is missing or is
+    not such a file."""
     try:
         blob = path.read_bytes()
     except OSError:
         return None
+    if not blob.startswith(magic):
+        return None
+    body = blob[len(magic) :]
+    n = int.from_bytes(body[:8], "little")
+    return pickle.loads(body[8 : 8 + n]), body[8 + n :]
+
+
+def _read(path: pathlib.Path):
+    """``(Exported, (output tree, program digest, calls LAPACK))`` from ``path``, or None when it is missing or
+    unreadable."""
     try:
-        if not blob.startswith(_MAGIC):
+        found = _read_file(path, _MAGIC)
+        if found is None:
             return None
-        body = blob[len(_MAGIC) :]
-        n = int.from_bytes(body[:8], "little")
-        out_tree, digest = pickle.loads(body[8 : 8 + n])
-        exp = jax.export.deserialize(bytearray(body[8 + n :]))
-        return exp, out_tree, digest
+        header, payload = found
+        return jax.export.deserialize(bytearray(payload)), header
     except Exception:  # noqa: BLE001 (a torn or foreign file: traced and written again)
         return None
 
 
-_EXEC_MAGIC = b"JXMC1\n"
+_EXEC_MAGIC = b"JXMC2\n"
 _HITS = threading.local()
 _LISTENING = []
 
@@ -492,45 +508,42 @@ def _lapack_ready() -> bool:
         return False
 
 
-def _read_executable(path: pathlib.Path):
-    """The ``jax.stages.Compiled`` stored at ``path``, or None when it is missing, unreadable or unusable."""
-    try:
-        blob = path.read_bytes()
-    except OSError:
+def _read_executable(path: pathlib.Path, lapack: bool):
+    """The ``jax.stages.Compiled`` stored at ``path``, or None when it is missing, unreadable or unusable
+    (``lapack``: the program calls LAPACK, whose kernels must be set up first)."""
+    if lapack and path.is_file() and not _lapack_ready():
         return None
     try:
-        if not blob.startswith(_EXEC_MAGIC):
+        found = _read_file(path, _EXEC_MAGIC)
+        if found is None:
             return None
-        body = blob[len(_EXEC_MAGIC) :]
-        if body[0] and not _lapack_ready():
-            return None
-        n = int.from_bytes(body[1:9], "little")
-        in_tree, out_tree = pickle.loads(body[9 : 9 + n])
+        (in_tree, out_tree), payload = found
         from jax.experimental import serialize_executable
 
-        return serialize_executable.deserialize_and_load(body[9 + n :], in_tree, out_tree)
+        return serialize_executable.deserialize_and_load(payload, in_tree, out_tree)
     except Exception:  # noqa: BLE001 (torn, foreign or stale: compiled and written again)
         return None
 
 
-def _write_executable(path: pathlib.Path, compiled, lapack: bool) -> None:
-    """Write ``compiled`` (atomically, as :func:`_write`); an executable that cannot be serialised is not kept."""
-    try:
-        from jax.experimental import serialize_executable
+def _write_executable(path: pathlib.Path, compiled) -> None:
+    """Write ``compiled`` (:func:`_write_file`); an executable that cannot be serialised is not kept."""
+    from jax.experimental import serialize_executable
 
+    try:
         data, in_tree, out_tree = serialize_executable.serialize(compiled)
-        trees = pickle.dumps((in_tree, out_tree))
-        _write_atomic(path, _EXEC_MAGIC + bytes([lapack]) + len(trees).to_bytes(8, "little") + trees + data)
-    except Exception:  # noqa: BLE001 (not serialisable, read-only or full disk: compiled again next time)
-        pass
+    except Exception:  # noqa: BLE001 (not serialisable: compiled again next time)
+        return
+    _write_file(path, _EXEC_MAGIC, (in_tree, out_tree), data)
 
 
-def _write(path: pathlib.Path, exp, out_tree, digest: str) -> None:
-    """Write atomically (a torn file is never left under the final name); a failure only costs the next start."""
+def _write_file(path: pathlib.Path, magic: bytes, header, payload) -> None:
+    """``magic``, the pickled ``header`` (its length first) and ``payload``, written atomically (a torn file is
+    never left under the final name); a failure (an unpicklable header, a read-only or full disk) only costs the
+    next start."""
     try:
-        tree = pickle.dumps((out_tree, digest))
-        _write_atomic(path, _MAGIC + len(tree).to_bytes(8, "little") + tree + bytes(exp.serialize()))
-    except Exception:  # noqa: BLE001 (unpicklable output tree, read-only or full disk: run as usual)
+        head = pickle.dumps(header)
+        _write_atomic(path, magic + len(head).to_bytes(8, "little") + head + bytes(payload))
+    except Exception:  # noqa: BLE001 (run as usual)
         pass
 
 
