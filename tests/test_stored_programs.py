@@ -4,6 +4,7 @@ program read back without tracing the function, with the same results bit for bi
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 from typing import NamedTuple
 
@@ -36,24 +37,40 @@ class Counted:
         return {"sum": Pair(jnp.cumsum(pair.a * scale) + noise + self.shift, jnp.sin(pair.b)), "none": None}
 
 
+@contextlib.contextmanager
+def _config(name: str, value):
+    """JAX's configuration ``name`` set to ``value`` inside the block, restored after it."""
+    before = getattr(jax.config, name)
+    jax.config.update(name, value)
+    try:
+        yield
+    finally:
+        jax.config.update(name, before)
+
+
 @pytest.fixture
 def uncached():
     """No program compiled during the test enters JAX's persistent compilation cache (the suite's, whatever its
     threshold): every compilation of a new program is XLA's, so its executable is kept."""
-    before = jax.config.jax_persistent_cache_min_compile_time_secs
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1e9)
-    yield
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", before)
+    with _config("jax_persistent_cache_min_compile_time_secs", 1e9):
+        yield
+
+
+@pytest.fixture
+def all_cached():
+    """Every program compiled during the test enters JAX's persistent compilation cache (the suite's,
+    tests/conftest.py)."""
+    assert jax.config.jax_compilation_cache_dir
+    with _config("jax_persistent_cache_min_compile_time_secs", 0.0):
+        yield
 
 
 @pytest.fixture
 def source_locations():
     """Programs lowered with their source lines in their locations (the suite lowers without them,
     tests/conftest.py)."""
-    before = jax.config.jax_traceback_in_locations_limit
-    jax.config.update("jax_traceback_in_locations_limit", 10)
-    yield
-    jax.config.update("jax_traceback_in_locations_limit", before)
+    with _config("jax_traceback_in_locations_limit", 10):
+        yield
 
 
 def _fresh() -> float:
@@ -308,24 +325,18 @@ def test_a_new_instance_runs_the_kept_executable_without_lowering(tmp_path, unca
     assert (seen.lowered, seen.compiled) == (0, 0)
 
 
-def test_an_executable_read_from_the_compilation_cache_is_not_kept(tmp_path):
+def test_an_executable_read_from_the_compilation_cache_is_not_kept(tmp_path, all_cached):
     """An executable that JAX's persistent cache supplied is not written (jaxlib 0.10 serialises it without its
     kernels): after a cache hit the run uses it and keeps none; a real compilation then keeps one again."""
-    assert jax.config.jax_compilation_cache_dir  # the suite's (tests/conftest.py)
-    before = jax.config.jax_persistent_cache_min_compile_time_secs
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-    try:
-        args, shift = _args(n=7), _fresh()
-        want = jax.jit(Counted(shift))(*args)
-        StoredJit(Counted(shift), "cache hit", folder=tmp_path)(*args)  # compiled by XLA: kept, and cached
-        (kept,) = tmp_path.glob("*.xlaexec")
-        kept.unlink()
-        again = StoredJit(Counted(shift), "cache hit", folder=tmp_path)
-        hits = stored_programs._cache_hits()
-        _equal(again(*args), want)
-        assert stored_programs._cache_hits() == hits + 1 and not list(tmp_path.glob("*.xlaexec"))
-    finally:
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", before)
+    args, shift = _args(n=7), _fresh()
+    want = jax.jit(Counted(shift))(*args)
+    StoredJit(Counted(shift), "cache hit", folder=tmp_path)(*args)  # compiled by XLA: kept, and cached
+    (kept,) = tmp_path.glob("*.xlaexec")
+    kept.unlink()
+    again = StoredJit(Counted(shift), "cache hit", folder=tmp_path)
+    hits = stored_programs._cache_hits()
+    _equal(again(*args), want)
+    assert stored_programs._cache_hits() == hits + 1 and not list(tmp_path.glob("*.xlaexec"))
 
 
 def test_a_torn_executable_is_compiled_and_written_again(tmp_path, uncached):
@@ -438,27 +449,21 @@ def test_an_edited_package_finds_the_executable_of_an_unchanged_program(
     assert stored_programs.program_digest(a) == stored_programs.program_digest(b)
 
 
-def test_each_thread_count_keeps_its_own_executable(tmp_path, monkeypatch):
+def test_each_thread_count_keeps_its_own_executable(tmp_path, monkeypatch, all_cached):
     """XLA's CPU code differs with the threads of its pool, which JAX's cache key does not hold: a process with
     another thread count (``--cpu-threads``) neither runs the executable kept by the first nor gets the first's
     compilation from JAX's cache, but compiles and keeps its own."""
     from jaxmocap import host
 
-    assert jax.config.jax_compilation_cache_dir  # the suite's (tests/conftest.py)
-    before = jax.config.jax_persistent_cache_min_compile_time_secs
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)  # every compilation enters the cache
-    try:
-        args, shift = _args(n=6), _fresh()
-        want = jax.jit(Counted(shift))(*args)
-        StoredJit(Counted(shift), "threads", folder=tmp_path)(*args)
-        assert len(list(tmp_path.glob("*.xlaexec"))) == 1
-        n = host.cpu_threads() or 1
-        monkeypatch.setattr(host, "cpu_threads", lambda: n + 1)
-        other = StoredJit(Counted(shift), "threads", folder=tmp_path)
-        hits = stored_programs._cache_hits()
-        with _Lowerings() as seen:
-            _equal(other(*args), want)
-        assert seen.compiled == 1 and stored_programs._cache_hits() == hits
-        assert len(list(tmp_path.glob("*.xlaexec"))) == 2
-    finally:
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", before)
+    args, shift = _args(n=6), _fresh()
+    want = jax.jit(Counted(shift))(*args)
+    StoredJit(Counted(shift), "threads", folder=tmp_path)(*args)
+    assert len(list(tmp_path.glob("*.xlaexec"))) == 1
+    n = host.cpu_threads() or 1
+    monkeypatch.setattr(host, "cpu_threads", lambda: n + 1)
+    other = StoredJit(Counted(shift), "threads", folder=tmp_path)
+    hits = stored_programs._cache_hits()
+    with _Lowerings() as seen:
+        _equal(other(*args), want)
+    assert seen.compiled == 1 and stored_programs._cache_hits() == hits
+    assert len(list(tmp_path.glob("*.xlaexec"))) == 2
