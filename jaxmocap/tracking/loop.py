@@ -489,10 +489,8 @@ class TrackingLoop:
         ending = {"wall": t_begin, "resumed_at": resumed_at}
         ck = run_folder.Checkpoints(self.out, o.fsync, model.num_dofs, p["x0"], self._ref_frame)
         writer = run_folder.BackgroundWriter()
-        # (a run of one frame is not smoothed: SciPy is not needed)
         threading.Thread(
             target=outputs.preload,
-            args=(o.smooth if len(frames) > 1 else None,),
             name="jaxmocap-preload",
             daemon=True,
         ).start()

@@ -61,12 +61,9 @@ def lost_frames(records: Sequence[Mapping]) -> set[int]:
     return {int(r["frame"]) for r in records if r.get("lost")}
 
 
-def preload(smooth: str | None = smoothing.DEFAULT_SMOOTH, plots: bool = True) -> None:
-    """Import what :func:`export_track` will need (SciPy's signal package for the smoothing ``smooth``, as
-    :func:`export_track` takes it, Matplotlib for the plots: together about 2 s of a run's end, a few per cent of a
-    long run) — called in a thread of its own while the frames are tracked."""
-    if smoothing.parse_smooth(smooth) is not None:
-        import scipy.signal  # noqa: F401
+def preload(plots: bool = True) -> None:
+    """Import what :func:`export_track` will need (Matplotlib for the plots: about 0.4 s of a run's end) — called in
+    a thread of its own while the frames are tracked."""
     if plots:
         import matplotlib.figure  # noqa: F401
         from matplotlib.backends import backend_agg  # noqa: F401

@@ -67,3 +67,43 @@ def test_fill_gaps_without_a_good_frame_keeps_the_samples():
     out, interp = smoothing.fill_gaps(np.arange(3), np.arange(3), np.ones((3, 2)), np.zeros(3, bool))
     np.testing.assert_array_equal(out, 1.0)
     assert not interp.any()
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 4])
+def test_butter_lowpass_is_scipys_design(n):
+    """The NumPy design of the digital Butterworth low-pass gives SciPy's coefficients for every order and cut-off
+    (``scipy.signal.butter``, the reference), with unit gain at DC."""
+    from scipy import signal
+
+    for wn in (0.01, 2.0 / 15.0, 0.5, 0.93):
+        b, a = smoothing.butter_lowpass(n, wn)
+        b_ref, a_ref = signal.butter(n, wn)
+        np.testing.assert_allclose(b, b_ref, rtol=1e-11, atol=1e-16)
+        np.testing.assert_allclose(a, a_ref, rtol=1e-11, atol=1e-13)
+        # unit DC gain; Σ a_k cancels to about (π wn / 2)^n, so its rounding grows as the cut-off falls
+        assert np.sum(b) / np.sum(a) == pytest.approx(1.0, rel=1e-16 / (np.pi * wn / 2) ** n)
+    for bad in [(0, 0.5), (2, 0.0), (2, 1.0)]:
+        with pytest.raises(ValueError, match="Butterworth"):
+            smoothing.butter_lowpass(*bad)
+
+
+def test_smoothing_equals_scipys_filtfilt():
+    """The exported track's smoothing equals ``scipy.signal.filtfilt`` of ``scipy.signal.butter(2, …)`` with the
+    padding of the module docstring, for random walks of every length from the shortest (2 samples) and several
+    frame rates, to float rounding; and ``lfilter`` from a state equals ``scipy.signal.lfilter``'s."""
+    from scipy import signal
+
+    rng = np.random.default_rng(1)
+    for T in (2, 3, 4, 6, 7, 31, 400):
+        x = np.cumsum(rng.normal(size=(T, 5, 3)), axis=0)
+        for fps, fc in ((30.0, 2.0), (60.0, 6.0), (240.0, 2.0)):
+            b, a = signal.butter(2, fc / (fps / 2))
+            ref = signal.filtfilt(b, a, x, axis=0, padlen=min(3 * max(len(a), len(b)), T - 1))
+            np.testing.assert_allclose(
+                smoothing.butterworth(x, fps, fc), ref, rtol=0, atol=1e-10 * np.abs(ref).max()
+            )
+    b, a = signal.butter(3, 0.2)
+    x, zi = rng.normal(size=(50, 4)), rng.normal(size=(3, 4))
+    np.testing.assert_allclose(
+        smoothing.lfilter(b, a, x, zi), signal.lfilter(b, a, x, axis=0, zi=zi)[0], rtol=1e-12, atol=1e-12
+    )
