@@ -163,6 +163,17 @@ def particle_options() -> dict[str, bool]:
     return {name: value for name, value in options.items() if name not in flags}
 
 
+def gathers_apart() -> bool:
+    """Whether PARSEC's likelihood reads its pixels with gathers of their own
+    (:attr:`jaxmocap.parsec.likelihood.Config.gathers_apart`): on XLA's CPU backend of an x86 CPU without AVX-512,
+    where XLA's fused sampling loop compiles to scalar code (1.49× faster apart, measured there); elsewhere the
+    fused loop is kept (on an AMD EPYC with AVX-512 it is vector code with scalar reads, 2.6–3.0 µs of CPU per
+    particle, not measured apart)."""
+    import jax
+
+    return jax.default_backend() == "cpu" and vector_isa() in ("AVX2", "AVX", "SSE")
+
+
 #: the name the operating system shows for a thread of XLA's CPU intra-op pool (Eigen's)
 _POOL_THREAD = "tf_XLAEigen"
 

@@ -96,6 +96,20 @@ def test_particle_options_loop_fusion_on_x86_without_avx512_unless_xla_flags_say
     assert host.particle_options() == expected
 
 
+@pytest.mark.parametrize(
+    ("isa", "expected"), [("AVX2", True), ("AVX", True), ("AVX-512", False), ("aarch64", False)]
+)
+def test_gathers_apart_on_x86_without_avx512(monkeypatch, isa, expected):
+    """PARSEC's pixel reads run apart from the sampling loop where XLA's fused loop is scalar (x86 without
+    AVX-512), fused elsewhere, and fused for an accelerator."""
+    import jax
+
+    monkeypatch.setattr(host, "vector_isa", lambda: isa)
+    assert host.gathers_apart() is expected
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    assert host.gathers_apart() is False
+
+
 def test_no_cpu_option_for_programs_compiled_for_an_accelerator(monkeypatch):
     import jax
 

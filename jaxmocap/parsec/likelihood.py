@@ -37,7 +37,8 @@ into one packed integer counter per lane (no reduction ops, which XLA on CPU mat
 summed into four integers per particle carried by the scan over part groups (no per-part array is stacked: 1.05×,
 and the edge sum is exact before its one rounding to float32). The pixel index is computed exactly in float32
 without a conversion (:func:`_index`), and the pixel reads promise in-bounds indices (a masked sample reads pixel
-0); XLA compiles a loop iteration into one fused kernel. The loop lengths are reduced once before each loop, and
+0); XLA compiles a loop iteration into one fused kernel (on x86 CPUs without AVX-512 the positions apart from the
+reads and sums, :func:`_gather`). The loop lengths are reduced once before each loop, and
 the sphere test uses its static sphere counts (:func:`_static_sphere_counts`, NumPy only, so that they stay
 concrete inside ``jit``) and is compiled as a computation of its own (:func:`_on_its_own`). The programs that
 evaluate it (:func:`jit_loglik_batch`, the PARSEC tracker's step) are compiled with
@@ -109,6 +110,10 @@ class Config:
         it; past the CPU's caches every pass over them waits on memory: 16000 particles at once took 4.6 µs per
         particle, in four chunks of 4000 3.1 µs (AMD EPYC with 32 MB of L3, one thread, bit-identical values;
         8000 at once 3.0 µs).
+      gathers_apart: whether a loop iteration's pixel reads are one gather of their own, apart from the sample
+        positions before them and the sums after them (:func:`_gather`); None (the default): where
+        :func:`jaxmocap.host.gathers_apart` says so. The values do not depend on it but for float rounding at a
+        pixel border (:func:`_gather`).
 
     Groups of the same size, ``chunk`` and ``inside_cols`` share one compiled loop, scanned over them.
     """
@@ -122,6 +127,13 @@ class Config:
     inside_cols: tuple[int, ...] = (6, 6, 4, 4, 4, 4)
     inside_rows: int = 2
     max_batch: int = 4096
+    gathers_apart: bool | None = None
+
+    @property
+    def apart(self) -> bool:
+        """Whether the pixel reads run as gathers of their own (:func:`_gather`): ``gathers_apart``, or where it is
+        None :func:`jaxmocap.host.gathers_apart` (this machine's choice)."""
+        return host.gathers_apart() if self.gathers_apart is None else bool(self.gathers_apart)
 
     def __post_init__(self):
         parts = sorted(p for g in self.groups for p in g)
@@ -357,9 +369,26 @@ def _index(x, y, offset, W: int, H: int, active):
     return jnp.where(m, idx, jnp.uint32(0)), m
 
 
-def _gather(flat, idx_masks):
-    """Pixel values at the indices of ``[(idx, mask), ...]`` (in bounds: :func:`_index`)."""
-    return [(flat.at[i].get(mode="promise_in_bounds"), m) for i, m in idx_masks]
+def _gather(flat, idx_masks, apart: bool):
+    """Pixel values at the indices of ``[(idx, mask), ...]`` (in bounds: :func:`_index`).
+
+    Fused (``apart`` False), XLA compiles a loop iteration — sample positions, reads and sums — into one kernel,
+    whose reads are scalar loads between vector arithmetic; without AVX-512 LLVM then keeps the whole kernel scalar.
+    ``apart``: the indices are stacked and materialised (``lax.optimization_barrier``, which XLA does not fuse
+    across) and read by one gather, so that the positions compile to vector kernels of their own and only the
+    reads and the sums after them stay in a scalar kernel (a second barrier between the reads and the sums made
+    no difference: 7.62 against 7.70 µs per particle). The same operations in the same order, in another XLA
+    program: equal values for 4000 particles around sequenceB_2's initial pose, but a multiply-add that XLA
+    contracts into an FMA in one program and not in the other can move a sample that lies on a pixel border to the
+    neighbouring pixel (seen for one probe state of ``tests/parsec/test_parsec.py`` at XLA's lowest optimisation
+    level: one edge sample of about 900). On an AMD EPYC without AVX-512 (family 25, model 17, AVX2) the likelihood ran 1.49× faster (12.25 →
+    8.06 µs per particle, 1.46× less CPU; ``benchmarks/perf/bench_parsec.py --bodytrack-rounds 3 --against HEAD
+    --ab-rounds 7``, 2026-12-01)."""
+    if not apart:
+        return [(flat.at[i].get(mode="promise_in_bounds"), m) for i, m in idx_masks]
+    idx = jax.lax.optimization_barrier(jnp.stack([i for i, _ in idx_masks]))
+    values = flat.at[idx].get(mode="promise_in_bounds")
+    return [(values[j], m) for j, (_, m) in enumerate(idx_masks)]
 
 
 def _edge_group(uv, flat_edge, config: Config, W: int, H: int, C: int):
@@ -386,7 +415,7 @@ def _edge_group(uv, flat_edge, config: Config, W: int, H: int, C: int):
         for j in range(C):
             samples.append(_index(px + t * sx, py + t * sy, offset, W, H, (k * C + j) < count))
             t = t + d
-        for v, m in _gather(flat_edge, samples):
+        for v, m in _gather(flat_edge, samples, config.apart):
             e = 255 - v.astype(jnp.int32)
             if packed:
                 acc = acc + jnp.where(m, e * e * 256 + 1, 0).astype(jnp.uint32)
@@ -444,7 +473,7 @@ def _inside_group(uv, flat_fg, config: Config, W: int, H: int, C2: int):
                     _index(e1x + delta2 * ex, e1y + delta2 * ey, offset, W, H, on_row & (j < left))
                 )
                 delta2 = delta2 + d2
-            for v, m in _gather(flat_fg, samples):
+            for v, m in _gather(flat_fg, samples, config.apart):
                 # one accumulator: background samples in the high 16 bits, all samples in the low 16 bits (a
                 # lane has at most (max_rows_n + 1)·max_cols_n < 65536 samples, checked by Config)
                 acc = acc + jnp.where(m, jnp.where(v == 0, 65537, 1), 0).astype(jnp.uint32)

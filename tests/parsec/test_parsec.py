@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxmocap import parsec  # also registers the parsec31 body with jaxmocap.geometry.body
+from jaxmocap import host, parsec  # also registers the parsec31 body with jaxmocap.geometry.body
 from jaxmocap.errors import MocapInputError
 from jaxmocap.geometry import body
 from jaxmocap.parsec import cylinders
@@ -526,6 +526,30 @@ def test_edge_chunks_change_the_work_not_the_sums(pdata, corners_fn, probe_corne
                 np.testing.assert_array_equal(a, b)
     with pytest.raises(ValueError, match="chunk needs one entry per group"):
         pl.Config(chunk=(8, 8))
+
+
+def test_reads_apart_or_fused_give_the_same_values(pdata, corners_fn, probe_corners):
+    """The pixel reads as gathers of their own (``Config(gathers_apart=True)``: the sample indices materialised
+    behind an optimisation barrier) or fused into the sampling loop give the same per-part sums of the probe
+    corners, to the integer, and the same log-likelihoods of eight states, bit for bit but where a sample lies on a
+    pixel border: the two are different XLA programs, whose multiply-adds may be contracted differently, and one of
+    the probe states ("poses.txt line 0") has a corner on a border (:func:`test_likelihood_matches_bodytrack`) —
+    at most one particle, by at most one edge sample's share (1 / 800). Only the program differs (the barrier is in
+    its StableHLO). By default the machine decides (:func:`jaxmocap.host.gathers_apart`)."""
+    obs = _obs(pdata, 0)
+    apart, fused = pl.Config(gathers_apart=True), pl.Config(gathers_apart=False)
+    for uv in probe_corners:
+        a, f = (corners_fn(uv, obs, config=c) for c in (apart, fused))
+        for x, y in zip(a, f, strict=True):
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    X = _eight(pdata, scale=3.0)
+    fns = [jax.jit(pl.make_loglik_batch(pdata["shape"], pdata["cams"], c)) for c in (apart, fused)]
+    got, ref = (np.asarray(fn(X, obs)) for fn in fns)
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1.0 / 800)
+    assert np.sum(got != ref) <= 1
+    texts = [fn.lower(X, obs).as_text() for fn in fns]
+    assert "optimization_barrier" in texts[0] and "optimization_barrier" not in texts[1]
+    assert pl.Config().apart == host.gathers_apart()
 
 
 def test_intersecting_parts_are_invalid(pdata, loglik_fn):
