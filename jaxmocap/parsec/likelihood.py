@@ -381,9 +381,9 @@ def _gather(flat, idx_masks, apart: bool):
     program: equal values for 4000 particles around sequenceB_2's initial pose, but a multiply-add that XLA
     contracts into an FMA in one program and not in the other can move a sample that lies on a pixel border to the
     neighbouring pixel (seen for one probe state of ``tests/parsec/test_parsec.py`` at XLA's lowest optimisation
-    level: one edge sample of about 900). On an AMD EPYC without AVX-512 (family 25, model 17, AVX2) the likelihood ran 1.49× faster (12.25 →
-    8.06 µs per particle, 1.46× less CPU; ``benchmarks/perf/bench_parsec.py --bodytrack-rounds 3 --against HEAD
-    --ab-rounds 7``, 2026-12-01)."""
+    level: one edge sample of about 900). On an AMD EPYC without AVX-512 (family 25, model 17, AVX2) the
+    likelihood ran 1.49× faster apart (12.25 → 8.06 µs per particle, 1.46× less CPU;
+    ``benchmarks/perf/bench_parsec.py --bodytrack-rounds 3 --against HEAD --ab-rounds 7``, 2026-12-01)."""
     if not apart:
         return [(flat.at[i].get(mode="promise_in_bounds"), m) for i, m in idx_masks]
     idx = jax.lax.optimization_barrier(jnp.stack([i for i, _ in idx_masks]))

@@ -78,7 +78,7 @@ def butterworth(x: np.ndarray, fps: float, cutoff_hz: float, order: int = ORDER)
     if x.shape[0] < 2:
         return x.copy()
     b, a = butter_lowpass(order // 2, cutoff_hz / (fps / 2.0))
-    return filtfilt(b, a, x, padlen=min(3 * len(a), x.shape[0] - 1))
+    return filtfilt(b, a, x, padlen=min(3 * max(len(a), len(b)), x.shape[0] - 1))
 
 
 def butter_lowpass(n: int, wn: float) -> tuple[np.ndarray, np.ndarray]:
@@ -104,7 +104,8 @@ def lfilter(b: np.ndarray, a: np.ndarray, x: np.ndarray, zi: np.ndarray) -> np.n
     """``y`` of the IIR filter ``(b, a)`` (``a_0 = 1``, ``len(a) == len(b) = m + 1``) over ``x (T, C)`` along axis
     0, from the state ``zi (m, C)`` of its transposed direct form II: ``y_t = b_0 x_t + z_0``, then
     ``z_i ← b_{i+1} x_t − a_{i+1} y_t + z_{i+1}`` (``z_m = 0``) — ``scipy.signal.lfilter(b, a, x, zi=zi)[0]``.
-    A loop over the T samples, each a few operations on C values (about 5 µs a sample)."""
+    A loop over the T samples, each a few operations on C values: the two passes over a 10 000-frame track of 60
+    values took 0.35 s (on a busy 2-core machine), SciPy's compiled loop a few milliseconds."""
     z = [zi[i].copy() for i in range(len(zi))]
     m = len(z)
     y = np.empty_like(x)
