@@ -554,6 +554,14 @@ def _add_tracking_commands(sub) -> None:
         help="also write an H.264 MP4 per view with the model drawn over the images, and a montage PNG",
     )
     tr.add_argument(
+        "--no-plots",
+        dest="plots",
+        action="store_false",
+        default=None,
+        help="do not draw the pictures of plots/ at the end (about 1 s of a run's end; `jaxmocap plot RUN` draws "
+        "them later)",
+    )
+    tr.add_argument(
         "--smooth",
         type=_smooth_spec,
         default=None,

@@ -491,6 +491,7 @@ class TrackingLoop:
         writer = run_folder.BackgroundWriter()
         threading.Thread(
             target=outputs.preload,
+            args=(o.plots,),
             name="jaxmocap-preload",
             daemon=True,
         ).start()
@@ -685,6 +686,7 @@ class TrackingLoop:
                 outputs.export_track(
                     self.out, model, setup.frames, pose_writer.frames, pose_writer.states, diag.records,
                     self.source.fps, smooth=self.o.smooth, bvh_units=self.o.bvh_units, groundtruth=groundtruth,
+                    plots=self.o.plots,
                 )
             )  # fmt: skip
         if groundtruth is not None and n:

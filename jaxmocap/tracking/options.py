@@ -252,7 +252,9 @@ class TrackOptions:
     :func:`default_refine_depth`);
     ``diffusion_scale``: multiplies :func:`diffusion_std`; ``survival_target``: α of
     Deutscher's rule; ``loss_*``/``reinit_widen``: track loss (module docstring); ``on_bad_frame``: ``skip`` or
-    ``stop``; ``overlay``: MP4 per view; ``resume``/``overwrite``: what to do with a previous run in the output
+    ``stop``; ``overlay``: MP4 per view; ``plots``: draw the pictures of ``plots/`` at the end
+    (:func:`jaxmocap.eval.plots.plot_run`; ``jaxmocap plot RUN`` draws them later; not part of :meth:`identity`);
+    ``resume``/``overwrite``: what to do with a previous run in the output
     folder; ``fsync``: ``fsync`` every rewrite; ``smooth`` (``butterworth[:CUTOFF_HZ]`` or ``none``) and
     ``bvh_units`` (``cm`` or ``m``): the exported track (:mod:`jaxmocap.tracking.outputs`; not part of
     :meth:`identity`: a resumed run may export differently); ``keypoint_layout``: ``auto`` or a layout of
@@ -299,6 +301,7 @@ class TrackOptions:
     reinit_widen: float = 3.0
     on_bad_frame: str = "skip"
     overlay: bool = False
+    plots: bool = True
     resume: bool = False
     overwrite: bool = False
     fsync: bool = False

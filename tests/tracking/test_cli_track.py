@@ -395,7 +395,8 @@ def test_demo_command(capsys, tmp_path):
 
 def test_particle_count_per_partition(capsys, sequence, tmp_path):
     """``--particles`` with one count per partition (Li & Kulić's unequal counts) reaches the partitioned filter:
-    the carried set has the last partition's count and the summary lists every count."""
+    the carried set has the last partition's count and the summary lists every count. With ``--no-plots`` the run
+    draws no pictures (the other exports are written)."""
     from jaxmocap.filters.factory import partition_groups
     from jaxmocap.geometry import body
 
@@ -405,12 +406,13 @@ def test_particle_count_per_partition(capsys, sequence, tmp_path):
     out = tmp_path / "o"
     code = cli.main(
         ["track", str(sequence), "--model", "upper9", "--filter", "partitioned", "--particles", text,
-         "--cues", "coverage", "--frames", "0:2", "--out", str(out)]
+         "--cues", "coverage", "--frames", "0:2", "--out", str(out), "--no-plots"]
     )  # fmt: skip
     captured = capsys.readouterr()
     assert code == 0, captured.err
     assert "/".join(map(str, counts)) + " particles" in captured.out
     summary = json.loads((out / "diagnostics.json").read_text())["summary"]
     assert summary["particles"] == counts
+    assert "plots" not in summary and not (out / "plots").exists() and (out / "track.bvh").is_file()
     with np.load(out / "resume.npz") as ck:
         assert ck["particles"].shape[0] == counts[-1]
