@@ -285,13 +285,23 @@ class _Program:
     without its kernels in jaxlib 0.10 (read back, its first call fails with "Function … not found"), so after a
     cache hit nothing is written and the run keeps the cache's executable (:func:`_cache_hits`). A program that
     calls LAPACK gets JAX's LAPACK kernels initialised before its executable is read back (lowering does that);
-    where that is not possible the executable is not used. An executable that cannot be read back is compiled
+    where that is not possible the executable is not used. A process whose XLA CPU pool has fewer threads than
+    the one the executable was compiled for (``--cpu-threads auto`` choosing one thread beside a busy process)
+    runs that executable when its own is missing, instead of compiling for 10–30 s: its parallel loops run on the
+    threads there are, the same values (the PARSEC likelihood compiled for two threads ran at 13.35 µs per
+    particle on one, 12.94 µs compiled for one; the other way round it loses its second thread, 12.81 against
+    8.17 µs, so a wider pool compiles its own). An executable that cannot be read back is compiled
     and written again — unless JAX's cache holds the program (its last real compilation put it there): then the
     run uses the cache's executable, as without this class, until that entry goes."""
 
     def __init__(self, jitted, path: pathlib.Path, compiler_options: dict, lapack: bool):
         self.jitted = jitted
         self.path = path.with_name(f"{path.stem}.{machine_digest(compiler_options)}.xlaexec")
+        # executables of the same program compiled for a wider XLA CPU pool, the narrowest first
+        self.wider = [
+            path.with_name(f"{path.stem}.{machine_digest(compiler_options, k)}.xlaexec")
+            for k in _wider_pools()
+        ]
         self.lapack = lapack  # the program calls LAPACK (:func:`_program_facts`)
         self.compiled = None
         self._lock = threading.Lock()
@@ -301,6 +311,10 @@ class _Program:
         with self._lock:
             if self.compiled is None:
                 compiled = _read_executable(self.path, self.lapack)
+                for wider in self.wider if compiled is None else ():
+                    compiled = _read_executable(wider, self.lapack)
+                    if compiled is not None:
+                        break
                 if compiled is None:
                     hits = _cache_hits()
                     compiled = self.jitted.lower(*leaves).compile()
@@ -469,21 +483,35 @@ def _cpu_identity() -> str:
     return "\n".join(sorted(set(lines)))
 
 
-def _threads() -> str:
-    """``"<n>threads"``: the threads of XLA's CPU pool (:func:`jaxmocap.host.cpu_threads`) when the default
-    backend is the CPU, else ``"accelerator"``."""
+def _threads(count: int | None = None) -> str:
+    """``"<n>threads"``: the threads of XLA's CPU pool (:func:`jaxmocap.host.cpu_threads`, or ``count``) when the
+    default backend is the CPU, else ``"accelerator"``."""
     from jaxmocap import host
 
-    return f"{host.cpu_threads()}threads" if jax.default_backend() == "cpu" else "accelerator"
+    if jax.default_backend() != "cpu":
+        return "accelerator"
+    return f"{host.cpu_threads() if count is None else count}threads"
 
 
-def machine_digest(compiler_options: dict | None = None) -> str:
+def _wider_pools() -> list[int]:
+    """Thread counts above this process's XLA CPU pool, up to the CPUs of its affinity mask (none for an
+    accelerator): the pools whose executables this process may run (:class:`_Program`)."""
+    from jaxmocap import host
+
+    if jax.default_backend() != "cpu":
+        return []
+    n = host.cpu_threads() or 1
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return list(range(n + 1, max(cpus, n) + 1))
+
+
+def machine_digest(compiler_options: dict | None = None, threads: int | None = None) -> str:
     """16 hex digits naming what a compiled executable depends on beyond its program: the JAX and jaxlib
     versions, the backend's platform and version, the device kind, ``XLA_FLAGS``, the compiler options, the host
     CPU's model and flags and the threads of XLA's CPU pool (:func:`jaxmocap.host.cpu_threads`: XLA's CPU code
     differs with them — the PARSEC step's executable is 3 390 423 bytes compiled with one, 3 403 623 with two —
     and the command line chooses one or two by load, ``--cpu-threads auto``; JAX's own cache key does not hold
-    them)."""
+    them); ``threads``: the digest for a pool of that many threads instead of this process's."""
     dev = jax.devices()[0]
     parts = (
         f"jax {jax.__version__} jaxlib {importlib.metadata.version('jaxlib')}",
@@ -491,7 +519,7 @@ def machine_digest(compiler_options: dict | None = None) -> str:
         os.environ.get("XLA_FLAGS", ""),
         repr(sorted((compiler_options or {}).items())),
         _cpu_identity(),
-        _threads(),
+        _threads(threads),
     )
     return hashlib.sha256("\0".join(parts).encode()).hexdigest()[:16]
 

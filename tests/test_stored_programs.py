@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import os
 from typing import NamedTuple
 
 import jax
@@ -467,3 +468,33 @@ def test_each_thread_count_keeps_its_own_executable(tmp_path, monkeypatch, all_c
         _equal(other(*args), want)
     assert seen.compiled == 1 and stored_programs._cache_hits() == hits
     assert len(list(tmp_path.glob("*.xlaexec"))) == 2
+
+
+def test_a_narrower_pool_runs_a_wider_pools_executable(tmp_path, monkeypatch, all_cached):
+    """A process whose XLA CPU pool has fewer threads than the one an executable was compiled for (``--cpu-threads
+    auto`` beside a busy process) runs that executable when its own is missing: no lowering, no compilation, the
+    same values; its own, once there, is preferred. (The other way round a process compiles its own:
+    :func:`test_each_thread_count_keeps_its_own_executable`.)"""
+    from jaxmocap import host
+
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2}, raising=False)
+    args, shift = _args(n=7), _fresh()
+    want = jax.jit(Counted(shift))(*args)
+    monkeypatch.setattr(host, "cpu_threads", lambda: 3)
+    StoredJit(Counted(shift), "narrower", folder=tmp_path)(*args)
+    assert len(list(tmp_path.glob("*.xlaexec"))) == 1
+    monkeypatch.setattr(host, "cpu_threads", lambda: 1)
+    narrow = StoredJit(Counted(shift), "narrower", folder=tmp_path)
+    with _Lowerings() as seen:
+        _equal(narrow(*args), want)
+    assert (seen.lowered, seen.compiled) == (0, 0)
+    (wide,) = tmp_path.glob("*.xlaexec")
+    # without it the narrow pool compiles and keeps its own, which is then read first (the wide one torn)
+    kept = wide.read_bytes()
+    wide.unlink()
+    _equal(StoredJit(Counted(shift), "narrower", folder=tmp_path)(*args), want)
+    (own,) = tmp_path.glob("*.xlaexec")
+    wide.write_bytes(kept[: len(kept) // 2])
+    with _Lowerings() as seen:
+        _equal(StoredJit(Counted(shift), "narrower", folder=tmp_path)(*args), want)
+    assert (seen.lowered, seen.compiled) == (0, 0) and own.is_file()
