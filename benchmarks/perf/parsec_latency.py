@@ -6,7 +6,8 @@ Each checkout gets its own compilation cache directory (``JAXMOCAP_CACHE_DIR``):
 every program compiled and stored), the rounds then time warm runs (what a user gets from the second run of a
 configuration on). Every round runs each condition (as found, then beside one busy-loop process,
 ``bodytrack.busy``) and in it this checkout, ``REV`` (the order alternating) and bodytrack serial's whole run of
-one frame, with the 1-minute load average. ``REV``'s package is ``git archive REV jaxmocap`` in a temporary folder
+one frame, with the 1-minute load average, and this checkout once more with ``--no-plots`` (the run's pictures
+left out: bodytrack writes none). ``REV``'s package is ``git archive REV jaxmocap`` in a temporary folder
 (the command runs there, so that ``python -m jaxmocap.cli`` imports it).
 
     JAX_PLATFORMS=cpu .venv/bin/python benchmarks/perf/parsec_latency.py [--rounds 5] [--against REV] [--out FILE]
@@ -25,13 +26,28 @@ import bodytrack
 import common
 
 
-def first_frame(root: pathlib.Path, cache: pathlib.Path, out: pathlib.Path) -> float:
-    """Wall seconds of ``python -m jaxmocap.cli track sequenceB_2 --frames 0:1`` (:func:`common.run_cli`)."""
+def first_frame(root: pathlib.Path, cache: pathlib.Path, out: pathlib.Path, *options: str) -> float:
+    """Wall seconds of ``python -m jaxmocap.cli track sequenceB_2 --frames 0:1 [options]``
+    (:func:`common.run_cli`)."""
     return common.run_cli(
         root,
         cache,
-        ["track", str(bodytrack.SEQ), "--out", str(out), "--frames", "0:1", "--quiet", "--overwrite"],
+        [
+            "track",
+            str(bodytrack.SEQ),
+            "--out",
+            str(out),
+            "--frames",
+            "0:1",
+            "--quiet",
+            "--overwrite",
+            *options,
+        ],
     )
+
+
+#: the column of this checkout's runs with ``--no-plots``
+NO_PLOTS = "--no-plots"
 
 
 def measure(rounds: int, against: str | None, log=print) -> str:
@@ -54,7 +70,10 @@ def measure(rounds: int, against: str | None, log=print) -> str:
                     roots[n], tmp / f"cache{names.index(n)}", tmp / f"out{names.index(n)}"
                 )
             },
-            extra=lambda: {"bodytrack": bodytrack.bodytrack_run(4000, 5, frames=1, out=out_build)[1]},
+            extra=lambda: {
+                NO_PLOTS: first_frame(roots[names[0]], tmp / "cache0", tmp / "out_no_plots", NO_PLOTS),
+                "bodytrack": bodytrack.bodytrack_run(4000, 5, frames=1, out=out_build)[1],
+            },
             log=log,
         )
 
@@ -70,23 +89,27 @@ def measure(rounds: int, against: str | None, log=print) -> str:
         "Warm (the same cache directories), interleaved rounds:",
         "",
     ]
-    head = ["round", "condition", "load (1 min)"] + [f"{n} s" for n in names] + ["bodytrack serial 1 frame s"]
+    head = ["round", "condition", "load (1 min)"] + [f"{n} s" for n in names]
+    head += [f"this checkout {NO_PLOTS} s", "bodytrack serial 1 frame s"]
     head += [f"this ÷ {against}"] if against else []
-    head += ["bodytrack ÷ this"]
+    head += ["bodytrack ÷ this", f"bodytrack ÷ this {NO_PLOTS}"]
     lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for row in rows:
         cells = [str(row["round"]), row["condition"], f"{row['load']:.2f}"]
-        cells += [f"{row[n]:.2f}" for n in names] + [f"{row['bodytrack']:.2f}"]
+        cells += [f"{row[n]:.2f}" for n in names] + [f"{row[NO_PLOTS]:.2f}", f"{row['bodytrack']:.2f}"]
         cells += [f"{row[this] / row[against]:.2f}"] if against else []
-        cells += [f"{row['bodytrack'] / row[this]:.3f}"]
+        cells += [f"{row['bodytrack'] / row[this]:.3f}", f"{row['bodytrack'] / row[NO_PLOTS]:.3f}"]
         lines.append("| " + " | ".join(cells) + " |")
     lines += ["", "Medians per condition:", ""]
     for cond in bodytrack.CONDITIONS:
         sel = [row for row in rows if row["condition"] == cond]
         if not sel:
             continue
-        med = {n: statistics.median(row[n] for row in sel) for n in [*names, "bodytrack"]}
-        text = f"- {cond}: " + ", ".join(f"{n} {med[n]:.2f} s" for n in [*names, "bodytrack"])
+        cols = [*names, NO_PLOTS, "bodytrack"]
+        med = {n: statistics.median(row[n] for row in sel) for n in cols}
+        text = f"- {cond}: " + ", ".join(
+            f"{'this checkout ' + n if n == NO_PLOTS else n} {med[n]:.2f} s" for n in cols
+        )
         if against:
             text += f"; this ÷ {against} per round median **{statistics.median(row[this] / row[against] for row in sel):.2f}**"
         lines.append(text)
