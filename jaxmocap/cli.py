@@ -547,20 +547,10 @@ def _add_tracking_commands(sub) -> None:
         help="record the number of modes (EM/BIC) of the particle set after each annealing layer in "
         "diagnostics.json (APF-based filters; slower)",
     )
-    tr.add_argument(
-        "--overlay",
-        action="store_true",
-        default=None,
-        help="also write an H.264 MP4 per view with the model drawn over the images, and a montage PNG",
-    )
-    tr.add_argument(
-        "--no-plots",
-        dest="plots",
-        action="store_false",
-        default=None,
-        help="do not draw the pictures of plots/ at the end (about 1 s of a run's end; `jaxmocap plot RUN` draws "
-        "them later)",
-    )
+    tr.add_argument("--overlay", action="store_true", default=None,
+                    help="also write an H.264 MP4 per view with the model drawn over it, and a montage PNG")  # fmt: skip
+    tr.add_argument("--no-plots", dest="plots", action="store_false", default=None,
+                    help="do not draw plots/ at the end (about 1 s; `jaxmocap plot RUN` draws it later)")  # fmt: skip
     tr.add_argument(
         "--smooth",
         type=_smooth_spec,
