@@ -29,6 +29,7 @@ import sys
 
 from jaxmocap import __version__, choices, demo
 from jaxmocap.errors import MocapInputError, silence_opencv
+from jaxmocap.synth import command as synth_command
 from jaxmocap.tracking import presets
 from jaxmocap.tracking.smoothing import DEFAULT_CUTOFF_HZ
 
@@ -62,72 +63,6 @@ def _calib_convert(args) -> int:
     rig = calibration.load_calibration(args.input)
     calibration.save_calibration(args.output, rig)
     print(f"wrote {rig.num_views} cameras to {args.output}")
-    return 0
-
-
-#: The options of ``jaxmocap synth`` that :func:`jaxmocap.synth.generate.synthesize` takes by the same name (the
-#: flag's dashes as underscores): flag and ``add_argument`` settings.
-_SYNTH_OPTIONS: tuple[tuple[str, dict], ...] = (
-    (
-        "--motion",
-        dict(required=True, help="a .bvh or .amc clip of any skeleton, or 'demo' (the bundled CMU walk)"),
-    ),
-    ("--asf", dict(help="ASF skeleton of an .amc clip (default: SS.asf next to SS_TT.amc)")),
-    (
-        "--mapping",
-        dict(help="TOML file naming file joints for evaluation joints (default: by names, then shape)"),
-    ),
-    ("--scale", dict(type=float, help="metres per file unit (BVH default: detected from the legs)")),
-    ("--up-axis", dict(choices=("y", "z"), help="the file's up axis (BVH default: detected)")),
-    ("--rig", dict(default="stereo", help="stereo, frontal-lateral, ring4 or a calibration file")),
-    ("--frames", dict(help="source frame range A:B (default: the whole clip)")),
-    ("--fps", dict(type=float, default=30.0, help="output frame rate (default 30; subsamples)")),
-    ("--size", dict(help="image size WxH (default 640x480, or the calibration's)")),
-    ("--seed", dict(type=int, default=0, help="seed of every random number (default 0)")),
-    (
-        "--background",
-        dict(default="photo", help="photo, plain, an image file, or room (a 3D room with shadows)"),
-    ),
-    ("--clutter", dict(default="none", help="procedural clutter: none, low, medium, high or 0-1")),
-    ("--noise", dict(type=float, default=0.01, help="RGB noise sigma, 1 = full scale (default 0.01)")),
-    ("--depth-noise", dict(type=float, default=0.02, help="depth noise sigma in m (default 0.02)")),
-    ("--depth-smooth", dict(type=float, default=1.5, help="depth smoothing in px (default 1.5)")),
-    ("--illumination", dict(type=float, default=0.0, help="illumination change amplitude 0-1")),
-    ("--blur", dict(type=int, default=1, help="motion blur: source frames averaged (default 1)")),
-    (
-        "--clothing",
-        dict(default="plain", choices=("plain", "textured"), help="clothing texture (default plain)"),
-    ),
-    ("--sleeves", dict(default="long", choices=("long", "short"), help="short: bare forearms")),
-    ("--wrist-bands", dict(action="store_true", help="a lime band around each wrist (Li & Kulic's markers)")),
-    ("--licence", dict(help="licence line of the clip for meta.json (default: the CMU terms)")),
-    ("--overwrite", dict(action="store_true", help="replace an existing sequence in --out")),
-)
-
-
-def _synth_keywords() -> list[str]:
-    """The keywords of :func:`jaxmocap.synth.generate.synthesize` that :data:`_SYNTH_OPTIONS` set."""
-    return [flag[2:].replace("-", "_") for flag, _ in _SYNTH_OPTIONS]
-
-
-def _synth(args) -> int:
-    from jaxmocap.synth import generate as synth
-
-    def progress(done, total):
-        if not args.quiet and (done == total or done % 10 == 0):
-            print(f"\rframe {done}/{total}", end="\n" if done == total else "", flush=True)
-
-    options = {name: getattr(args, name) for name in _synth_keywords()}
-    try:
-        seq = synth.synthesize(out=args.out, progress=progress, **options)
-    except MocapInputError:
-        raise
-    except ValueError as e:  # a bad option value
-        print(f"jaxmocap: error: {e}", file=sys.stderr)
-        return 2
-    print(
-        f"wrote {seq.num_frames} frames x {len(seq.views)} views ({', '.join(seq.view_names)}) to {args.out}"
-    )
     return 0
 
 
@@ -547,10 +482,19 @@ def _add_tracking_commands(sub) -> None:
         help="record the number of modes (EM/BIC) of the particle set after each annealing layer in "
         "diagnostics.json (APF-based filters; slower)",
     )
-    tr.add_argument("--overlay", action="store_true", default=None,
-                    help="also write an H.264 MP4 per view with the model drawn over it, and a montage PNG")  # fmt: skip
-    tr.add_argument("--no-plots", dest="plots", action="store_false", default=None,
-                    help="do not draw plots/ at the end (about 1 s; `jaxmocap plot RUN` draws it later)")  # fmt: skip
+    tr.add_argument(
+        "--overlay",
+        action="store_true",
+        default=None,
+        help="also write an H.264 MP4 per view with the model drawn over the images, and a montage PNG",
+    )
+    tr.add_argument(
+        "--no-plots",
+        dest="plots",
+        action="store_false",
+        default=None,
+        help="do not draw the pictures of plots/ at the end (about 1 s; `jaxmocap plot RUN` draws them later)",
+    )
     tr.add_argument(
         "--smooth",
         type=_smooth_spec,
@@ -704,17 +648,7 @@ def build_parser() -> argparse.ArgumentParser:
     conv.add_argument("input")
     conv.add_argument("output")
     conv.set_defaults(func=_calib_convert)
-    syn = sub.add_parser(
-        "synth",
-        help="render a synthetic multi-view sequence of a mocap clip",
-        description="Render a synthetic multi-view sequence (RGB, mask, part labels, virtual depth, calibration, "
-        "ground truth, body file) of a motion-capture clip; see README 'Sequence folder format'.",
-    )
-    for flag, settings in _SYNTH_OPTIONS:
-        syn.add_argument(flag, **settings)
-    syn.add_argument("--quiet", action="store_true", help="no progress output")
-    syn.add_argument("--out", required=True, help="output sequence folder")
-    syn.set_defaults(func=_synth)
+    synth_command.add_command(sub)
     _add_tracking_commands(sub)
     _add_sweep_command(sub)
     return p
