@@ -14,9 +14,9 @@ two-frame stereo ``jaxmocap track --init ik`` compiles about 160 of them: 18.4�
 against 23.5–24.9 s with only those over 1 s, ratio per round 0.73–0.91 as found and beside a busy process, 1.8
 against 1.1 MB of cache). The command line and :func:`jaxmocap.track` also keep the runs' filter steps (and
 PARSEC's weighted start) *traced*, with their compiled executables, in the ``jaxmocap-exported/`` folder beside
-them, so that a warm run neither traces nor lowers them (:mod:`jaxmocap.stored_programs`). Deleting the directory is always safe. Scripts and
-notebooks get the same cache by calling :func:`enable` before their first compilation (and the traced steps with
-``with stored_programs.use(enable()):`` around their run).
+them, so that a warm run neither traces nor lowers them (:mod:`jaxmocap.stored_programs`). Deleting the directory
+is always safe. Scripts and notebooks get the same cache by calling :func:`enable` before their first compilation
+(and the traced steps with ``with stored_programs.use(enable()):`` around their run).
 """
 
 from __future__ import annotations

@@ -157,7 +157,7 @@ def particle_options() -> dict[str, bool]:
     if jax.default_backend() != "cpu":
         return {}  # programs compiled for an accelerator
     options = dict(COPY_REGIONS)
-    if vector_isa() in ("AVX2", "AVX", "SSE"):
+    if _x86_without_avx512():
         options.update(LOOP_FUSION)
     flags = os.environ.get("XLA_FLAGS", "")
     return {name: value for name, value in options.items() if name not in flags}
@@ -171,7 +171,13 @@ def gathers_apart() -> bool:
     particle, not measured apart)."""
     import jax
 
-    return jax.default_backend() == "cpu" and vector_isa() in ("AVX2", "AVX", "SSE")
+    return jax.default_backend() == "cpu" and _x86_without_avx512()
+
+
+def _x86_without_avx512() -> bool:
+    """An x86 CPU whose widest vector extension is below AVX-512 (:func:`vector_isa`), where XLA's loops with
+    per-sample gathers compile to scalar code: :func:`particle_options` and :func:`gathers_apart` choose for it."""
+    return vector_isa() in ("AVX2", "AVX", "SSE")
 
 
 #: the name the operating system shows for a thread of XLA's CPU intra-op pool (Eigen's)

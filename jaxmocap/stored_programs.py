@@ -297,11 +297,7 @@ class _Program:
     def __init__(self, jitted, path: pathlib.Path, compiler_options: dict, lapack: bool):
         self.jitted = jitted
         self.path = path.with_name(f"{path.stem}.{machine_digest(compiler_options)}.xlaexec")
-        # executables of the same program compiled for a wider XLA CPU pool, the narrowest first
-        self.wider = [
-            path.with_name(f"{path.stem}.{machine_digest(compiler_options, k)}.xlaexec")
-            for k in _wider_pools()
-        ]
+        self._program_path, self._options = path, compiler_options
         self.lapack = lapack  # the program calls LAPACK (:func:`_program_facts`)
         self.compiled = None
         self._lock = threading.Lock()
@@ -311,7 +307,7 @@ class _Program:
         with self._lock:
             if self.compiled is None:
                 compiled = _read_executable(self.path, self.lapack)
-                for wider in self.wider if compiled is None else ():
+                for wider in self._wider_paths() if compiled is None else ():
                     compiled = _read_executable(wider, self.lapack)
                     if compiled is not None:
                         break
@@ -322,6 +318,12 @@ class _Program:
                         _write_executable(self.path, compiled)
                 self.compiled = compiled
             return self.compiled
+
+    def _wider_paths(self) -> list[pathlib.Path]:
+        """The executables of the same program compiled for a wider XLA CPU pool, the narrowest first (named only
+        when this pool's own is missing)."""
+        p = self._program_path
+        return [p.with_name(f"{p.stem}.{machine_digest(self._options, k)}.xlaexec") for k in _wider_pools()]
 
     def __call__(self, *leaves):
         return self.compile(leaves)(*leaves)

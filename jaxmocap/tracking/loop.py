@@ -489,12 +489,8 @@ class TrackingLoop:
         ending = {"wall": t_begin, "resumed_at": resumed_at}
         ck = run_folder.Checkpoints(self.out, o.fsync, model.num_dofs, p["x0"], self._ref_frame)
         writer = run_folder.BackgroundWriter()
-        threading.Thread(
-            target=outputs.preload,
-            args=(o.plots,),
-            name="jaxmocap-preload",
-            daemon=True,
-        ).start()
+        if o.plots:
+            threading.Thread(target=outputs.preload, name="jaxmocap-preload", daemon=True).start()
 
         def write_frame(t, x, joints, record, after):  # in the writer's thread, in frame order
             self._write_frame(pose_writer, diag, t, x, joints, record)

@@ -61,12 +61,11 @@ def lost_frames(records: Sequence[Mapping]) -> set[int]:
     return {int(r["frame"]) for r in records if r.get("lost")}
 
 
-def preload(plots: bool = True) -> None:
-    """Import what :func:`export_track` will need (Matplotlib for the plots: about 0.4 s of a run's end) — called in
-    a thread of its own while the frames are tracked."""
-    if plots:
-        import matplotlib.figure  # noqa: F401
-        from matplotlib.backends import backend_agg  # noqa: F401
+def preload() -> None:
+    """Import what :func:`export_track` will need for its plots (Matplotlib: about 0.4 s of a run's end) — called
+    in a thread of its own while the frames are tracked, by a run that draws them."""
+    import matplotlib.figure  # noqa: F401
+    from matplotlib.backends import backend_agg  # noqa: F401
 
 
 def export_track(
