@@ -316,6 +316,10 @@ _MAGIC = float(2**23)
 _MAGIC_BITS = 0x4B000000  # the bits of float32 2**23
 
 
+#: The index of a sample not counted when the reads are apart (:func:`_gather`): pixel 0 with the top bit set.
+_NOT_COUNTED = 1 << 31
+
+
 def _exact_float_index(V: int, W: int, H: int) -> bool:
     """Whether every flat pixel index of ``V`` maps of ``W × H`` stays below ``2**23`` (a float32 holds it exactly
     after :data:`_MAGIC` is added): up to 27 cameras at 640×480, 4 at 1920×1080."""
@@ -342,7 +346,7 @@ def _count(length: jnp.ndarray, step: float, cap: int) -> tuple[jnp.ndarray, jnp
     return n, finite
 
 
-def _index(x, y, offset, W: int, H: int, active):
+def _index(x, y, offset, W: int, H: int, active, apart: bool = False):
     """Flat pixel index (uint32) and counted mask of samples ``(x, y)`` (float32).
 
     bodytrack reads pixel ``(int(x + 0.5), int(y + 0.5))``, truncating toward 0, and counts the sample iff that
@@ -354,7 +358,8 @@ def _index(x, y, offset, W: int, H: int, active):
     instructions a coordinate on x86: this path takes the likelihood from 4.0 to 3.5 µs of CPU per particle
     (``benchmarks/perf/bench_parsec.py --against``); ``|u|`` (one AND) instead of XLA's NaN-propagating ``max(u,
     0)`` (up to three instructions) another 1.5 %. Maps too large for it (:func:`_exact_float_index`) convert.
-    Unsigned indices spare the gather JAX's wrap-around of negative ones; a sample not counted reads pixel 0.
+    Unsigned indices spare the gather JAX's wrap-around of negative ones; a sample not counted reads pixel 0, and
+    with ``apart`` (:func:`_gather`) its index is :data:`_NOT_COUNTED` (pixel 0 with the top bit set).
     """
     u = x + 0.5
     v = y + 0.5
@@ -366,7 +371,7 @@ def _index(x, y, offset, W: int, H: int, active):
         idx = (
             offset + jnp.maximum(v, 0.0).astype(jnp.int32) * W + jnp.maximum(u, 0.0).astype(jnp.int32)
         ).astype(jnp.uint32)
-    return jnp.where(m, idx, jnp.uint32(0)), m
+    return jnp.where(m, idx, jnp.uint32(_NOT_COUNTED if apart else 0)), m
 
 
 def _gather(flat, idx_masks, apart: bool):
@@ -383,12 +388,19 @@ def _gather(flat, idx_masks, apart: bool):
     neighbouring pixel (seen for one probe state of ``tests/parsec/test_parsec.py`` at XLA's lowest optimisation
     level: one edge sample of about 900). On an AMD EPYC without AVX-512 (family 25, model 17, AVX2) the
     likelihood ran 1.49× faster apart (12.25 → 8.06 µs per particle, 1.46× less CPU;
-    ``benchmarks/perf/bench_parsec.py --bodytrack-rounds 3 --against HEAD --ab-rounds 7``, 2026-12-01)."""
+    ``benchmarks/perf/bench_parsec.py --bodytrack-rounds 3 --against HEAD --ab-rounds 7``, 2026-12-01).
+
+    Apart, a sample's mask travels inside its index (:data:`_NOT_COUNTED`: the top bit, which no pixel index has):
+    the reads take the index without that bit and count the sample where it is clear. With the masks as arrays of
+    their own XLA computed every sample position twice, once in the kernel of the indices and once in a kernel of
+    the masks beside it (a fifth of the kernel time); without them the likelihood ran 1.26× faster, 1.26× less
+    CPU (6.59 → 5.36 µs per particle, seven interleaved rounds 1.01–1.33, equal values;
+    ``bench_parsec.py --bodytrack-rounds 0 --against HEAD --ab-rounds 7``, the same CPU, 2026-12-01)."""
     if not apart:
         return [(flat.at[i].get(mode="promise_in_bounds"), m) for i, m in idx_masks]
     idx = jax.lax.optimization_barrier(jnp.stack([i for i, _ in idx_masks]))
-    values = flat.at[idx].get(mode="promise_in_bounds")
-    return [(values[j], m) for j, (_, m) in enumerate(idx_masks)]
+    values = flat.at[idx & jnp.uint32(_NOT_COUNTED - 1)].get(mode="promise_in_bounds")
+    return [(values[j], idx[j] < jnp.uint32(_NOT_COUNTED)) for j in range(len(idx_masks))]
 
 
 def _edge_group(uv, flat_edge, config: Config, W: int, H: int, C: int):
@@ -413,7 +425,7 @@ def _edge_group(uv, flat_edge, config: Config, W: int, H: int, C: int):
         k, t, acc = carry
         samples = []
         for j in range(C):
-            samples.append(_index(px + t * sx, py + t * sy, offset, W, H, (k * C + j) < count))
+            samples.append(_index(px + t * sx, py + t * sy, offset, W, H, (k * C + j) < count, config.apart))
             t = t + d
         for v, m in _gather(flat_edge, samples, config.apart):
             e = 255 - v.astype(jnp.int32)
@@ -470,7 +482,9 @@ def _inside_group(uv, flat_fg, config: Config, W: int, H: int, C2: int):
             samples = []
             for j in range(C2):
                 samples.append(
-                    _index(e1x + delta2 * ex, e1y + delta2 * ey, offset, W, H, on_row & (j < left))
+                    _index(
+                        e1x + delta2 * ex, e1y + delta2 * ey, offset, W, H, on_row & (j < left), config.apart
+                    )
                 )
                 delta2 = delta2 + d2
             for v, m in _gather(flat_fg, samples, config.apart):
