@@ -600,16 +600,23 @@ def _total(a: jnp.ndarray, nb: int) -> jnp.ndarray:
 
 
 def _on_its_own(fn: Callable, x: jnp.ndarray, *args):
-    """``fn(*args)`` compiled as a computation of its own: the one branch taken of a conditional whose two
-    branches are ``fn``, on a predicate XLA cannot fold (``x₀ == x₀``, false only for a NaN, where the other, equal
-    branch runs). XLA fuses element-wise producers into their consumer and drops ``lax.optimization_barrier`` on
+    """``fn(*args)`` compiled as a computation of its own: the branch taken of a conditional on a predicate that is
+    always true but that XLA cannot fold (``x₀ == x₀ or x₀ ≠ x₀``, true for a NaN too); the other branch, never
+    taken, only returns zeros of ``fn``'s shapes (it was a second copy of ``fn`` while the predicate was ``x₀ ==
+    x₀``, false for a NaN: 640 of the likelihood program's 10 700 HLO instructions, which every compilation and
+    every executable read back pay for; the same values and speed without it). XLA fuses element-wise producers into their consumer and drops ``lax.optimization_barrier`` on
     the CPU; a conditional's branch is a boundary it keeps. Used for the sphere test, about 400 operations per
     particle that XLA otherwise fused into the likelihood's last kernel of some 1500 operations, which runs far
     slower per operation than a small loop does (the likelihood 1.05–1.08× faster per core with it on its own:
     ``benchmarks/perf/bench_parsec.py --against``). Batched (under ``vmap``) both branches would run: use it
     only where ``x`` is the batch itself."""
     first = x.reshape(-1)[0]
-    return jax.lax.cond(first == first, fn, fn, *args)
+    shapes = jax.eval_shape(fn, *args)
+
+    def never(*_):
+        return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
+
+    return jax.lax.cond((first == first) | (first != first), fn, never, *args)
 
 
 def _terms(shape: BodyShape, cams: Cameras, obs: Observation, x: jnp.ndarray, config: Config) -> Terms:

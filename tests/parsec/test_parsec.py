@@ -575,6 +575,12 @@ def test_intersecting_parts_are_invalid(pdata, loglik_fn):
     # the batch evaluated the sphere test above as a computation of its own (a conditional's branch), where
     # geometry_valid runs it inline: the same flags
     assert "stablehlo.case" in loglik_fn.lower(jnp.asarray(X), _obs(pdata, 0)).as_text()
+    # a NaN first particle takes the same branch (its other branch only returns zeros): the others keep their flags
+    Xn = X.copy()
+    Xn[0] = np.nan
+    ll_nan = np.asarray(loglik_fn(jnp.asarray(Xn), _obs(pdata, 0)))
+    assert ll_nan[0] == pl.INVALID
+    np.testing.assert_array_equal(ll_nan[1:], ll[1:])
 
 
 def test_sphere_counts_stay_static_under_jit(pdata):
