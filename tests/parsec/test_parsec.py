@@ -535,13 +535,17 @@ def test_reads_apart_or_fused_give_the_same_values(pdata, corners_fn, probe_corn
     pixel border: the two are different XLA programs, whose multiply-adds may be contracted differently, and one of
     the probe states ("poses.txt line 0") has a corner on a border (:func:`test_likelihood_matches_bodytrack`) —
     at most one particle, by at most one edge sample's share (1 / 800). Only the program differs (the barrier is in
-    its StableHLO). By default the machine decides (:func:`jaxmocap.host.gathers_apart`)."""
+    its StableHLO). By default the machine decides (:func:`jaxmocap.host.gathers_apart`). A foreground map of
+    another dtype than bytes (non-zero: foreground) gives the same sums."""
     obs = _obs(pdata, 0)
     apart, fused = pl.Config(gathers_apart=True), pl.Config(gathers_apart=False)
+    # foreground maps of bytes (summed by table lookup when apart) and of another dtype (by comparison)
+    wide = pl.Observation(obs.edge, jnp.asarray(obs.fg, jnp.int32) * 300)
     for uv in probe_corners:
-        a, f = (corners_fn(uv, obs, config=c) for c in (apart, fused))
-        for x, y in zip(a, f, strict=True):
+        a, f, w = (corners_fn(uv, o, config=c) for o, c in ((obs, apart), (obs, fused), (wide, apart)))
+        for x, y, z in zip(a, f, w, strict=True):
             np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+            np.testing.assert_array_equal(np.asarray(z), np.asarray(y))
     X = _eight(pdata, scale=3.0)
     fns = [jax.jit(pl.make_loglik_batch(pdata["shape"], pdata["cams"], c)) for c in (apart, fused)]
     got, ref = (np.asarray(fn(X, obs)) for fn in fns)
