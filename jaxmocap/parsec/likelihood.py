@@ -38,7 +38,8 @@ summed into four integers per particle carried by the scan over part groups (no 
 and the edge sum is exact before its one rounding to float32). The pixel index is computed exactly in float32
 without a conversion (:func:`_index`), and the pixel reads promise in-bounds indices (a masked sample reads pixel
 0); XLA compiles a loop iteration into one fused kernel (on x86 CPUs without AVX-512 the positions apart from the
-reads and sums, :func:`_gather`). The loop lengths are reduced once before each loop, and
+reads and sums, :func:`_gather`, each sample's mask in the top bit of its index and its contribution to the sums
+looked up by the byte read, :func:`_lookup`). The loop lengths are reduced once before each loop, and
 the sphere test uses its static sphere counts (:func:`_static_sphere_counts`, NumPy only, so that they stay
 concrete inside ``jit``) and is compiled as a computation of its own (:func:`_on_its_own`). The programs that
 evaluate it (:func:`jit_loglik_batch`, the PARSEC tracker's step) are compiled with
@@ -628,12 +629,12 @@ def _on_its_own(fn: Callable, x: jnp.ndarray, *args):
     always true but that XLA cannot fold (``x₀ == x₀ or x₀ ≠ x₀``, true for a NaN too); the other branch, never
     taken, only returns zeros of ``fn``'s shapes (it was a second copy of ``fn`` while the predicate was ``x₀ ==
     x₀``, false for a NaN: 640 of the likelihood program's 10 700 HLO instructions, which every compilation and
-    every executable read back pay for; the same values and speed without it). XLA fuses element-wise producers into their consumer and drops ``lax.optimization_barrier`` on
-    the CPU; a conditional's branch is a boundary it keeps. Used for the sphere test, about 400 operations per
-    particle that XLA otherwise fused into the likelihood's last kernel of some 1500 operations, which runs far
-    slower per operation than a small loop does (the likelihood 1.05–1.08× faster per core with it on its own:
-    ``benchmarks/perf/bench_parsec.py --against``). Batched (under ``vmap``) both branches would run: use it
-    only where ``x`` is the batch itself."""
+    every executable read back pay for; the same values and speed without it). XLA fuses element-wise producers
+    into their consumer and drops ``lax.optimization_barrier`` on the CPU; a conditional's branch is a boundary it
+    keeps. Used for the sphere test, about 400 operations per particle that XLA otherwise fused into the
+    likelihood's last kernel of some 1500 operations, which runs far slower per operation than a small loop does
+    (the likelihood 1.05–1.08× faster per core with it on its own: ``benchmarks/perf/bench_parsec.py
+    --against``). Batched (under ``vmap``) both branches would run: use it only where ``x`` is the batch itself."""
     first = x.reshape(-1)[0]
     shapes = jax.eval_shape(fn, *args)
 
