@@ -1,6 +1,7 @@
 """The benchmark runner: its RESULTS.md block logic, and a quick-mode smoke run of every benchmark (tiny sizes, no
 timing assertion; in one child process, see :func:`quick_run`)."""
 
+import collections
 import os
 import pathlib
 import subprocess
@@ -187,6 +188,11 @@ def test_profile_names_the_kernels_and_their_contents(tmp_path):
     contents = prof.fusion_contents(f.lower(x).compile().as_text())
     fused = [name for name, ops in contents.items() if ops["sine"] == 1 and ops["multiply"] >= 1]
     assert fused and fused[0] in times and times[fused[0]] > 0
+    # --by-kind: the kernels of one kind (the name without its number) summed
+    kinds = prof.by_kind(
+        collections.Counter({"add_fusion.1": 1.0, "add_fusion.12": 2.0, "add_fusion": 0.5, "copy.3": 4.0})
+    )
+    assert kinds == collections.Counter({"add_fusion": 3.5, "copy": 4.0})
 
 
 def test_plate_source_is_what_a_recording_gives(tmp_path):
