@@ -87,6 +87,7 @@ from jaxmocap.io.sources import BadFrame
 from jaxmocap.stored_programs import StoredJit
 from jaxmocap.tracking import interrupts, outputs, resources, run_folder
 from jaxmocap.tracking.compile_watch import CompileWatch
+from jaxmocap.tracking.frame_keys import frame_keys
 from jaxmocap.tracking.prediction import angle_difference, predict, velocity_dofs
 from jaxmocap.tracking.progress import CompileNotice, Progress, warn
 from jaxmocap.transfer import to_device
@@ -95,14 +96,6 @@ __all__ = ["MAX_SEED", "LossTracker", "TrackingLoop", "layer_records"]
 
 #: the largest seed: JAX's keys take 32-bit seeds (without 64-bit mode a larger one would wrap onto a smaller one)
 MAX_SEED = 2**32 - 1
-
-
-@jax.jit
-def _frame_keys(seed, t):
-    """Frame ``t``'s keys: ``k = fold_in(key(seed), t)`` for the filter step, ``fold_in(k, 1)`` for the weighted
-    start and ``fold_in(k, 2)`` for a re-initialisation; one program for every frame (the eager calls stage four)."""
-    k = jax.random.fold_in(jax.random.key(seed), t)
-    return k, jax.random.fold_in(k, 1), jax.random.fold_in(k, 2)
 
 
 class LossTracker:
@@ -293,7 +286,7 @@ class TrackingLoop:
 
     def _key(self, t: int, purpose: int = 0):
         """Frame ``t``'s key for ``purpose`` 0 (the step), 1 (the weighted start) or 2 (a re-initialisation)."""
-        return _frame_keys(np.uint32(self.o.seed), np.int32(t))[purpose]
+        return frame_keys(int(self.o.seed), int(t))[purpose]
 
     # -- the loop -----------------------------------------------------------------------------------------------
 

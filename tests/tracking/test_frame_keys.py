@@ -1,0 +1,37 @@
+"""The tracker's per-frame keys derived on the host (:mod:`jaxmocap.tracking.frame_keys`) are JAX's own."""
+
+import jax
+import numpy as np
+import pytest
+
+from jaxmocap.tracking.frame_keys import frame_keys, threefry2x32
+
+
+def _jax_keys(seed, t):
+    k = jax.random.fold_in(jax.random.key(np.uint32(seed)), np.int32(t))
+    return k, jax.random.fold_in(k, 1), jax.random.fold_in(k, 2)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 7, 12345, 2**31 - 1, 2**31, 2**32 - 1])
+def test_frame_keys_are_jax_fold_in_of_jax_key(seed):
+    for t in (0, 1, 2, 99, 1000, 2**31 - 1):
+        ours, ref = frame_keys(seed, t), _jax_keys(seed, t)
+        for a, b in zip(ours, ref, strict=True):
+            assert a.dtype == b.dtype
+            np.testing.assert_array_equal(
+                np.asarray(jax.random.key_data(a)), np.asarray(jax.random.key_data(b))
+            )
+
+
+def test_threefry_known_answer():
+    """Random123's published known-answer vectors for Threefry-2x32 with 20 rounds (kat_vectors: counter and key
+    all zeros, all ones, and the digits of pi)."""
+    assert threefry2x32((0, 0), (0, 0)) == (0x6B200159, 0x99BA4EFE)
+    assert threefry2x32((0xFFFFFFFF, 0xFFFFFFFF), (0xFFFFFFFF, 0xFFFFFFFF)) == (0x1CB996FC, 0xBB002BE7)
+    assert threefry2x32((0x13198A2E, 0x03707344), (0x243F6A88, 0x85A308D3)) == (0xC4923A9C, 0x483DF7A0)
+
+
+def test_frames_draw_different_noise():
+    a, b = frame_keys(0, 0), frame_keys(0, 1)
+    assert not np.array_equal(np.asarray(jax.random.key_data(a[0])), np.asarray(jax.random.key_data(b[0])))
+    assert len({tuple(np.asarray(jax.random.key_data(k))) for k in a}) == 3
