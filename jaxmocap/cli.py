@@ -44,7 +44,7 @@ def _calib_show(args) -> int:
     rig, note = calibration.check_units(rig, "auto", args.file)
     if note:
         print(f"jaxmocap: note: {note}", file=sys.stderr)
-    centres = np.asarray(camera.camera_centres(rig.to_jax()))
+    centres = camera.camera_centres_host(rig)
     print(f"{rig.num_views} cameras in {args.file}")
     for v, name in enumerate(rig.names):
         K = np.asarray(rig.K[v])

@@ -36,16 +36,15 @@ stays ``float32`` (metres do not fit in a byte). ``as_float`` undoes the byte sc
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Sequence
 from typing import NamedTuple
 
 import cv2
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxmocap.errors import MocapInputError
+from jaxmocap.stored_programs import stored_jit
 from jaxmocap.transfer import to_device
 
 MAP_FIELDS = ("foreground", "edges", "edge_dt", "skin", "depth")
@@ -131,9 +130,10 @@ def encode_map(x: np.ndarray, dtype: str, *, unit: bool) -> np.ndarray:
     return x.astype(dtype, copy=False)
 
 
-@functools.partial(jax.jit, static_argnums=(1, 2))
+@stored_jit(static_argnames=("dtype", "unit"))
 def _to_float_on_device(x: jnp.ndarray, dtype: str, unit: bool) -> jnp.ndarray:
-    """``uint8`` unit maps → ``x / 255``; any map → ``dtype``."""
+    """``uint8`` unit maps → ``x / 255``; any map → ``dtype`` (a program kept on disk by a run of the command
+    line, :func:`jaxmocap.stored_programs.stored_jit`)."""
     if x.dtype == jnp.uint8 and unit:
         return (x.astype(jnp.float32) * (1.0 / 255.0)).astype(dtype)
     return x.astype(dtype)

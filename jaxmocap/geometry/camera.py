@@ -44,6 +44,7 @@ __all__ = [
     "project_per_view",
     "in_view",
     "camera_centres",
+    "camera_centres_host",
     "projection_matrices",
     "undistort_points",
     "triangulate",
@@ -395,6 +396,15 @@ def camera_centres(rig: Rig) -> jnp.ndarray:
     R = jnp.asarray(rig.R)
     t = jnp.asarray(rig.t)
     return -jnp.einsum("vji,vj->vi", R, t)
+
+
+def camera_centres_host(rig: Rig) -> np.ndarray:
+    """:func:`camera_centres` in NumPy, float64 ``(V, 3)``: for host code, where the two small programs of the
+    JAX form (traced, lowered and looked up in the compilation cache on every start) would cost more than the
+    arithmetic."""
+    R = np.asarray(rig.R, np.float64)
+    t = np.asarray(rig.t, np.float64)
+    return -np.einsum("vji,vj->vi", R, t)
 
 
 def projection_matrices(rig: Rig, normalised: bool = False) -> jnp.ndarray:

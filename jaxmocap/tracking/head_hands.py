@@ -192,7 +192,7 @@ class HeadHandsDetector:
             from jaxmocap.features.disparity import StereoGate
 
             self.gate = StereoGate(rig, self.views, gate_scale, self.max_range, self.height_range)
-        self._centre = np.asarray(camera.camera_centres(rig.to_jax(jnp.float32)), np.float64)[self.views[0]]
+        self._centre = camera.camera_centres_host(rig)[self.views[0]]
         i = self.views[0]
         self._axis = np.append(np.asarray(rig.R[i], np.float64)[2], np.asarray(rig.t[i], np.float64)[2])
         self._focal = float(np.asarray(rig.K[i], np.float64)[0, 0])

@@ -203,7 +203,7 @@ def reprojection_fit(
     rest = np.asarray(model.rest_pose, np.float64)
     limbs = np.ones(len(rest), bool)
     limbs[list(model.topology.segment_dofs[0])] = False
-    centre = np.asarray(camera.camera_centres(rig), np.float64)[0]
+    centre = camera.camera_centres_host(rig)[0]
     trans = root_translation_dofs(model)
 
     uv_j, w_j = to_device(uv, dtype), to_device(w, dtype)
@@ -243,7 +243,7 @@ def reprojection_fit(
 def rest_facing(model, rig: camera.Rig, point: np.ndarray) -> np.ndarray:
     """The rest pose standing below ``point`` (horizontally) and facing the first camera."""
     x = np.asarray(model.rest_pose, np.float64).copy()
-    centre = np.asarray(camera.camera_centres(rig.to_jax(jnp.float32)), np.float64)[0]
+    centre = camera.camera_centres_host(rig)[0]
     heading = [d for d in model.topology.segment_dofs[0] if model.dof_names[d].endswith("rz")]
     if heading:
         v = centre[:2] - point[:2]
@@ -255,7 +255,7 @@ def default_standing(model, rig: camera.Rig, distance: float = 3.0) -> np.ndarra
     """The rest pose standing ``distance`` metres in front of the first camera (along its optical axis, on the
     floor), facing it: where a tracker starts when it sees nobody."""
     R = np.asarray(rig.R[0], np.float64)
-    centre = np.asarray(camera.camera_centres(rig.to_jax(jnp.float32)), np.float64)[0]
+    centre = camera.camera_centres_host(rig)[0]
     axis = R[2].copy()
     axis[2] = 0.0
     axis /= max(np.linalg.norm(axis), 1e-9)

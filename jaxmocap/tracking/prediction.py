@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxmocap.choices import VELOCITY_DOFS
+from jaxmocap.stored_programs import stored_jit
 from jaxmocap.tracking.init import root_translation_dofs
 
 __all__ = ["angle_difference", "predict", "unwind", "velocity_dofs"]
@@ -50,9 +51,10 @@ def unwind(particles: jnp.ndarray, circular: jnp.ndarray) -> jnp.ndarray:
     return particles - two_pi * k
 
 
-@jax.jit
+@stored_jit
 def predict(particles: jnp.ndarray, step: jnp.ndarray, circular: jnp.ndarray) -> jnp.ndarray:
     """The frame's prediction of ``particles (N, D)``: moved by ``step (D,)`` (the damped constant velocity, zero
     where none), then :func:`unwind`; one compiled program, the same on every frame (an eager update would compile
-    its operations on the first frame that has a velocity)."""
+    its operations on the first frame that has a velocity), kept on disk by a run of the command line
+    (:func:`jaxmocap.stored_programs.stored_jit`: a warm start reads it back instead of tracing it)."""
     return unwind(particles + step, circular)

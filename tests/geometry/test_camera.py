@@ -139,6 +139,7 @@ def test_parsec_reference_projections():
     assert len(proj) == 40
     with enable_x64(True):
         np.testing.assert_allclose(np.asarray(C.camera_centres(rig)), eyes, atol=5e-3)
+        np.testing.assert_allclose(C.camera_centres_host(rig), eyes, atol=5e-3)  # the host form too
         worst = 0.0
         for (v, part), ref in proj.items():
             bottom, top, length, M = cyl[part]
