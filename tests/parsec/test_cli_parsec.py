@@ -154,7 +154,8 @@ def test_a_second_run_reads_its_programs_back(tmp_path):
     XLA's CPU backend on one thread (``jaxmocap --cpu-threads 1``: the summary counts its pool's threads); the
     first run chooses its threads by the machine's load (the default, ``--cpu-threads auto``) and records the
     choice, the second takes one per CPU. Every run compiles (or reads) its step in a thread beside the weighted
-    start, and its frames call that program (``compiled_ahead``; one step program)."""
+    start, and its frames call that program (``compiled_ahead``; one step program). The second run compiles
+    nothing at all (``JAX_LOG_COMPILES``): its frame keys are derived on the host and its other programs read back."""
     import os
     import subprocess
     import sys
@@ -171,9 +172,15 @@ def test_a_second_run_reads_its_programs_back(tmp_path):
         cmd += ["track", str(tmp_path / "in"), "--particles", "50"]
         cmd += ["--layers", "1", "--frames", "0:1", "--out", str(tmp_path / name), "--quiet"]
         proc = subprocess.run(
-            cmd, env=dict(env, JAXMOCAP_CACHE_DIR=cache_dir), capture_output=True, text=True, timeout=600
+            cmd,
+            env=dict(env, JAXMOCAP_CACHE_DIR=cache_dir, JAX_LOG_COMPILES="1"),
+            capture_output=True,
+            text=True,
+            timeout=600,
         )
         assert proc.returncode == 0, proc.stderr[-3000:]
+        if name == "second":  # a warm run traces and compiles nothing, not even a small eager program
+            assert "Compiling" not in proc.stderr, proc.stderr[-3000:]
         summary = json.loads((tmp_path / name / "diagnostics.json").read_text())["summary"]
         # PARSEC's step compiled with this CPU's options for its likelihood, recorded beside the CPU
         assert (summary["xla_options"], summary["cpu"]) == (host.particle_options(), host.description())
@@ -193,9 +200,8 @@ def test_a_second_run_reads_its_programs_back(tmp_path):
         return export.load_poses(tmp_path / name)["state"], (summary["step_traces"], summary["compilations"])
 
     first, n1 = run("first", str(cache))
-    assert (
-        len(list((cache / "jaxmocap-exported").glob("*.jaxexport"))) == 2
-    )  # the weighted start and the step
+    # the weighted start, the step and the frame's prediction (jaxmocap.tracking.prediction.predict)
+    assert len(list((cache / "jaxmocap-exported").glob("*.jaxexport"))) == 3
     second, n2 = run("second", str(cache), threads=len(os.sched_getaffinity(0)))
     off, n3 = run("off", "off", threads=1)
     assert (n1, n2, n3) == ((1, 1), (0, 1), (1, 1))
