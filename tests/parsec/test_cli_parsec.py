@@ -155,7 +155,8 @@ def test_a_second_run_reads_its_programs_back(tmp_path):
     first run chooses its threads by the machine's load (the default, ``--cpu-threads auto``) and records the
     choice, the second takes one per CPU. Every run compiles (or reads) its step in a thread beside the weighted
     start, and its frames call that program (``compiled_ahead``; one step program). The second run compiles
-    nothing at all (``JAX_LOG_COMPILES``): its frame keys are derived on the host and its other programs read back."""
+    nothing of its own code (``JAX_LOG_COMPILES``): its frame keys are derived on the host and its programs read
+    back (or, where the first run chose fewer threads, compiled from their exports)."""
     import os
     import subprocess
     import sys
@@ -179,8 +180,10 @@ def test_a_second_run_reads_its_programs_back(tmp_path):
             timeout=600,
         )
         assert proc.returncode == 0, proc.stderr[-3000:]
-        if name == "second":  # a warm run traces and compiles nothing, not even a small eager program
-            assert "Compiling" not in proc.stderr, proc.stderr[-3000:]
+        if name == "second":  # a warm run compiles no program of its own code, not even a small eager one
+            compiled = [line for line in proc.stderr.splitlines() if line.startswith("Compiling")]
+            # (a stored program is compiled from its export when this run's XLA pool is wider than the first's)
+            assert all("stored_executable" in line for line in compiled), compiled
         summary = json.loads((tmp_path / name / "diagnostics.json").read_text())["summary"]
         # PARSEC's step compiled with this CPU's options for its likelihood, recorded beside the CPU
         assert (summary["xla_options"], summary["cpu"]) == (host.particle_options(), host.description())
