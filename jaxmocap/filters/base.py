@@ -421,7 +421,7 @@ def init_state(
 
     One compiled program (kept on disk by a run of the command line, :func:`jaxmocap.stored_programs.stored_jit`):
     run eagerly its seven operations were seven small programs, each traced, lowered and looked up in the
-    compilation cache at every start (0.14 s of a warm stereo ``jaxmocap track``)."""
+    compilation cache at every start (0.14 s of a warm stereo ``jaxmocap track`` under cProfile)."""
     mean = jnp.asarray(mean)
     std = jnp.broadcast_to(jnp.asarray(std, mean.dtype), mean.shape)
     X = mean + std * jax.random.normal(key, (num_particles, mean.shape[-1]), mean.dtype)
