@@ -410,12 +410,13 @@ _EDGE_TABLE = (np.arange(255, -1, -1, dtype=np.uint32) ** 2) * 256 + 1
 _INSIDE_TABLE = np.where(np.arange(256) == 0, 65537, 1).astype(np.uint32)
 
 
-def _lookup(table: np.ndarray, v: jnp.ndarray) -> jnp.ndarray:
-    """``table[v]`` for bytes ``v``: where the reads are apart (:func:`_gather`) the sums run in a scalar kernel,
-    in which one load from a 1 KB table costs less than the arithmetic it replaces (the likelihood 1.08–1.12×
-    faster with both tables, equal values: ``bench_parsec.py --against``, two runs of seven rounds, AVX2-only EPYC,
-    2026-12-01). Maps of other dtypes than bytes are summed by comparisons."""
-    return jnp.asarray(table).at[v.astype(jnp.int32)].get(mode="promise_in_bounds")
+def _lookup(table: jnp.ndarray, v: jnp.ndarray) -> jnp.ndarray:
+    """``table[v]`` for bytes ``v`` (``table``: :data:`_EDGE_TABLE` or :data:`_INSIDE_TABLE` as an array, made once
+    per loop): where the reads are apart (:func:`_gather`) the sums run in a scalar kernel, in which one load from a
+    1 KB table costs less than the arithmetic it replaces (the likelihood 1.08–1.12× faster with both tables, equal
+    values: ``bench_parsec.py --against``, two runs of seven rounds, AVX2-only EPYC, 2026-12-01). Maps of other
+    dtypes than bytes are summed by comparisons."""
+    return table.at[v.astype(jnp.int32)].get(mode="promise_in_bounds")
 
 
 def _edge_group(uv, flat_edge, config: Config, W: int, H: int, C: int):
@@ -435,6 +436,7 @@ def _edge_group(uv, flat_edge, config: Config, W: int, H: int, C: int):
     # one uint32 accumulator per lane, SSD in the high bits and the sample count in the low 8 bits, when a side
     # has at most 255 samples (640×480: 161); two int32 accumulators otherwise
     packed = config.max_edge_n + 1 <= 255
+    table = jnp.asarray(_EDGE_TABLE) if packed and config.apart else None
 
     def body_fn(carry):
         k, t, acc = carry
@@ -443,8 +445,8 @@ def _edge_group(uv, flat_edge, config: Config, W: int, H: int, C: int):
             samples.append(_index(px + t * sx, py + t * sy, offset, W, H, (k * C + j) < count, config.apart))
             t = t + d
         for v, m in _gather(flat_edge, samples, config.apart):
-            if packed and config.apart:
-                acc = acc + jnp.where(m, _lookup(_EDGE_TABLE, v), jnp.uint32(0))
+            if table is not None:
+                acc = acc + jnp.where(m, _lookup(table, v), jnp.uint32(0))
                 continue
             e = 255 - v.astype(jnp.int32)
             if packed:
@@ -490,6 +492,7 @@ def _inside_group(uv, flat_fg, config: Config, W: int, H: int, C2: int):
     rows = jnp.where(f1 & f2, n1 + 1.0, 0.0)
     blocks = jnp.ceil(n2 / C2)  # blocks per row
     offset = _offsets(V, W, H, p1x)
+    table = jnp.asarray(_INSIDE_TABLE) if config.apart and flat_fg.dtype == jnp.uint8 else None
 
     def body_fn(carry):
         k, steps, acc = carry
@@ -512,8 +515,8 @@ def _inside_group(uv, flat_fg, config: Config, W: int, H: int, C2: int):
             for v, m in _gather(flat_fg, samples, config.apart):
                 # one accumulator: background samples in the high 16 bits, all samples in the low 16 bits (a
                 # lane has at most (max_rows_n + 1)·max_cols_n < 65536 samples, checked by Config)
-                if config.apart and v.dtype == jnp.uint8:
-                    acc = acc + jnp.where(m, _lookup(_INSIDE_TABLE, v), jnp.uint32(0))
+                if table is not None:
+                    acc = acc + jnp.where(m, _lookup(table, v), jnp.uint32(0))
                 else:
                     acc = acc + jnp.where(m, jnp.where(v == 0, 65537, 1), 0).astype(jnp.uint32)
             # next block of this row, or the first block of the next row (bodytrack's two loops)
