@@ -107,6 +107,19 @@ def bodytrack_frames(
     return bodytrack_run(particles, layers, frames, model, out)[0]
 
 
+def likelihood_problem(seq, particles: int):
+    """``(likelihood, particles, observation)``: :func:`jaxmocap.parsec.likelihood.jit_loglik_batch` of ``seq``,
+    ``particles`` states drawn around its initial pose with its standard deviations (seed 0), frame 0: the
+    likelihood the scripts time and profile against ``ll_bench``'s."""
+    import jax.numpy as jnp
+
+    from jaxmocap.parsec import likelihood as pl
+
+    x0, std = seq.initial_pose, seq.pose_std
+    X = (x0 + np.random.default_rng(0).normal(size=(particles, 31)) * std).astype(np.float32)
+    return pl.jit_loglik_batch(seq.shape, seq.cameras), jnp.asarray(X), seq.observation(0)
+
+
 class TrackerRun(NamedTuple):
     """One run of :class:`Tracker` over F frames: ``estimates (F, 31)`` (float64, PARSEC units), ``maps (F,)`` the
     host edge/foreground maps and ``step (F,)`` the compiled filter step (all layers), seconds per frame."""

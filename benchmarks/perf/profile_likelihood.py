@@ -66,14 +66,12 @@ def problem(config: str, particles: int):
     """``(f, args)``: the jitted likelihood of ``config`` and its arguments (``f(*args)`` evaluates the batch)."""
     rng = np.random.default_rng(0)
     if config == "parsec":
-        from bodytrack import SEQ
+        import bodytrack
 
         from jaxmocap import parsec
-        from jaxmocap.parsec import likelihood as pl
 
-        seq = parsec.load_sequence(SEQ)
-        X = (seq.initial_pose + rng.normal(size=(particles, 31)) * seq.pose_std).astype(np.float32)
-        return pl.jit_loglik_batch(seq.shape, seq.cameras), (jnp.asarray(X), seq.observation(0))
+        f, X, obs = bodytrack.likelihood_problem(parsec.load_sequence(bodytrack.SEQ), particles)
+        return f, (X, obs)
     model, rig, obs, lik, _ = scenes.build(config, rng)
     X = jnp.asarray(scenes.particles(model, particles, rng))
     return jax.jit(lambda X, obs: lik.batch(X, obs, 0)), (X, obs)

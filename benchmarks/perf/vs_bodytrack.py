@@ -57,21 +57,11 @@ import common
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 
 import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 from jaxmocap import host, parsec  # noqa: E402
-from jaxmocap.parsec import likelihood as pl  # noqa: E402
 
 TRACKER_CONFIGS = ((4000, 5), (1000, 3))
-
-
-def likelihood_problem(seq, particles: int):
-    """``(likelihood, particles, observation)``: :func:`jaxmocap.parsec.likelihood.jit_loglik_batch` of ``seq``,
-    ``particles`` states drawn around its initial pose with its standard deviations (seed 0), frame 0."""
-    x0, std = seq.initial_pose, seq.pose_std
-    X = (x0 + np.random.default_rng(0).normal(size=(particles, 31)) * std).astype(np.float32)
-    return pl.jit_loglik_batch(seq.shape, seq.cameras), jnp.asarray(X), seq.observation(0)
 
 
 def likelihood_us(ll, X, obs, repeats: int) -> tuple[float, float]:
@@ -89,7 +79,7 @@ class Jaxmocap:
     def __init__(self, particles: int, against: str | None = None):
         self.seq = parsec.load_sequence(bt.SEQ)
         seq = self.seq
-        self.ll, self.X, self.obs0 = likelihood_problem(seq, particles)
+        self.ll, self.X, self.obs0 = bt.likelihood_problem(seq, particles)
         self.ll(self.X, self.obs0).block_until_ready()
         self.trackers = {c: bt.Tracker(seq, *c) for c in TRACKER_CONFIGS}
         for c in TRACKER_CONFIGS:  # compile
@@ -122,13 +112,13 @@ AUTO = "likelihood µs/particle, new process, auto threads"
 
 def likelihood_child(particles: int, repeats: int) -> dict:
     """In a new process: XLA's CPU threads chosen as ``jaxmocap`` chooses them (``--cpu-threads auto``), then
-    :func:`likelihood_us` of :func:`likelihood_problem` (its program from the persistent compilation cache of
+    :func:`likelihood_us` of :func:`bodytrack.likelihood_problem` (its program from the persistent compilation cache of
     ``JAXMOCAP_CACHE_DIR``). Returns ``{us, cpu_us, threads, other_busy_cpus}``."""
     host.limit_cpu_threads(host.choose_cpu_threads(host.cpu_sample()))
     from jaxmocap import compilation_cache
 
     compilation_cache.enable()
-    us, cpu_us = likelihood_us(*likelihood_problem(parsec.load_sequence(bt.SEQ), particles), repeats)
+    us, cpu_us = likelihood_us(*bt.likelihood_problem(parsec.load_sequence(bt.SEQ), particles), repeats)
     auto = host.thread_summary()
     return dict(us=us, cpu_us=cpu_us, threads=auto["xla_cpu_threads"],
                 other_busy_cpus=auto.get("cpu_threads_auto", {}).get("other_busy_cpus", 0.0))  # fmt: skip
