@@ -8,19 +8,20 @@ with the parity constant ``0x1BD11BDA``) of the counter pair ``(0, d)`` under ke
 
 Computed here in NumPy (a few microseconds), they need no compiled program: JAX's own ``fold_in`` is one, whose
 first call in a process — trace, lowering and a compilation-cache look-up — took 95–140 ms of every warm run's
-start (`benchmarks/perf/parsec_latency.py`, AVX2-only EPYC, 2026-12-01). The values are JAX's, bit for bit
+start (timed alone in a warm process, three runs, AVX2-only EPYC, 2026-12-01; the warm one-frame PARSEC run
+``benchmarks/perf/parsec_latency.py`` times went from 1.48 to 1.42 s with ``--no-plots``, two runs of it
+before and after, not side by side). The values are JAX's,
+bit for bit
 (``tests/tracking/test_frame_keys.py``); with another default key implementation (``jax_default_prng_impl``) the
 keys are JAX's own, derived by JAX.
 """
 
 from __future__ import annotations
 
-import functools
-
 import jax
 import numpy as np
 
-__all__ = ["frame_keys", "threefry2x32"]
+__all__ = ["frame_key", "threefry2x32"]
 
 _ROTATIONS = ((13, 15, 26, 6), (17, 29, 16, 24))
 _PARITY = 0x1BD11BDA
@@ -55,12 +56,14 @@ def _frame_keys_jax(seed, t):
     return k, jax.random.fold_in(k, 1), jax.random.fold_in(k, 2)
 
 
-@functools.lru_cache(maxsize=64)
-def frame_keys(seed: int, t: int) -> tuple:
-    """Frame ``t``'s three keys of a run with ``seed`` (module docstring): ``(step, start, reinit)``, JAX key
-    arrays."""
+def frame_key(seed: int, t: int, purpose: int = 0) -> jax.Array:
+    """Frame ``t``'s key of a run with ``seed`` for ``purpose`` 0 (the filter step), 1 (the weighted start) or 2
+    (a re-initialisation) (module docstring): a JAX key array."""
+    if purpose not in (0, 1, 2):
+        raise ValueError(f"purpose must be 0, 1 or 2, got {purpose}")
     if jax.config.jax_default_prng_impl != "threefry2x32":
-        return _frame_keys_jax(np.uint32(seed), np.int32(t))
+        return _frame_keys_jax(np.uint32(seed), np.int32(t))[purpose]
     k = _fold_in((0, int(seed) & 0xFFFFFFFF), int(t))
-    words = np.asarray([k, _fold_in(k, 1), _fold_in(k, 2)], np.uint32)
-    return tuple(jax.random.wrap_key_data(w, impl="threefry2x32") for w in words)
+    if purpose:
+        k = _fold_in(k, purpose)
+    return jax.random.wrap_key_data(np.asarray(k, np.uint32), impl="threefry2x32")

@@ -87,7 +87,7 @@ from jaxmocap.io.sources import BadFrame
 from jaxmocap.stored_programs import StoredJit
 from jaxmocap.tracking import interrupts, outputs, resources, run_folder
 from jaxmocap.tracking.compile_watch import CompileWatch
-from jaxmocap.tracking.frame_keys import frame_keys
+from jaxmocap.tracking.frame_keys import frame_key
 from jaxmocap.tracking.prediction import angle_difference, predict, velocity_dofs
 from jaxmocap.tracking.progress import CompileNotice, Progress, warn
 from jaxmocap.transfer import to_device
@@ -286,7 +286,7 @@ class TrackingLoop:
 
     def _key(self, t: int, purpose: int = 0):
         """Frame ``t``'s key for ``purpose`` 0 (the step), 1 (the weighted start) or 2 (a re-initialisation)."""
-        return frame_keys(int(self.o.seed), int(t))[purpose]
+        return frame_key(int(self.o.seed), int(t), purpose)
 
     # -- the loop -----------------------------------------------------------------------------------------------
 
