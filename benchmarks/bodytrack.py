@@ -121,26 +121,31 @@ def likelihood_problem(seq, particles: int):
 
 
 class TrackerRun(NamedTuple):
-    """One run of :class:`Tracker` over F frames: ``estimates (F, 31)`` (float64, PARSEC units), ``maps (F,)`` the
-    host edge/foreground maps and ``step (F,)`` the compiled filter step (all layers), seconds per frame."""
+    """One run of :class:`Tracker` over F frames: ``estimates (F, 31)`` (float64, PARSEC units) and ``frame (F,)``
+    the seconds of each frame; run one after the other (``overlap=False``) also the split ``maps (F,)`` (the frame's
+    observation: images read, edge and foreground maps) and ``step (F,)`` (the compiled filter step, all layers),
+    whose sum is ``frame``; None when overlapped."""
 
     estimates: np.ndarray
-    maps: np.ndarray
-    step: np.ndarray
+    frame: np.ndarray
+    maps: np.ndarray | None = None
+    step: np.ndarray | None = None
 
     @property
     def per_frame(self) -> float:
-        """Median over the frames of maps + step (seconds)."""
-        return float(np.median(self.maps + self.step))
+        """Median over the frames of the frame's seconds."""
+        return float(np.median(self.frame))
 
 
 class Tracker:
     """jaxmocap's PARSEC tracker at ``particles`` × ``layers``: :func:`jaxmocap.parsec.annealing.parsec_apf` with the
     PARSEC likelihood and bodytrack's initialisation (``InitialPose + N(0, σ_0)`` weighted against frame 0 with its
     β), the start and the step each jitted once (compiled by the first :meth:`run`). ``package``: the ``jaxmocap``
-    package to build it from (default this checkout's; :func:`common.package_at` for another revision's)."""
+    package to build it from (default this checkout's; :func:`common.package_at` for another revision's). Each
+    frame's observation is read from the sequence folder as ``jaxmocap track`` reads it (the package's
+    ``ParsecSource``: the BMPs decoded, the edge and foreground maps computed), as bodytrack reads its frames."""
 
-    def __init__(self, seq, particles: int, layers: int, package=None):
+    def __init__(self, seq, particles: int, layers: int, package=None, folder: pathlib.Path = SEQ):
         import jax
         import jax.numpy as jnp
 
@@ -148,8 +153,10 @@ class Tracker:
             import jaxmocap as package
         ptrack = importlib.import_module(f"{package.__name__}.parsec.track")
         parsec_apf = importlib.import_module(f"{package.__name__}.parsec.annealing").parsec_apf
+        inputs = importlib.import_module(f"{package.__name__}.parsec.inputs")
 
         self.seq, self._jax = seq, jax
+        self.source = inputs.ParsecSource(folder)
         std = jnp.asarray(seq.pose_std, jnp.float32)
         x0 = jnp.asarray(seq.initial_pose, jnp.float32)
         loglik = ptrack.make_loglik(seq.shape, seq.cameras)  # bodytrack drops invalid poses (−1e10)
@@ -161,24 +168,40 @@ class Tracker:
         )
         self._step = jax.jit(filt.step, compiler_options=options)
 
-    def run(self, seed: int = 0, frames: int | None = None) -> TrackerRun:
-        """Track frames ``0 … frames − 1`` (all by default) with key ``seed``; each frame timed as its host maps
-        (``seq.observation(t)``) and the filter step, which waits for its particles."""
-        jax, seq = self._jax, self.seq
+    def run(self, seed: int = 0, frames: int | None = None, overlap: bool = False) -> TrackerRun:
+        """Track frames ``0 … frames − 1`` (all by default) with key ``seed``.
+
+        ``overlap=False``: each frame timed as its observation (:attr:`source`) and then the filter step, which
+        waits for its particles. ``overlap=True``: as ``jaxmocap track``'s frame loop runs them
+        (:class:`jaxmocap.tracking.loop.TrackingLoop`): the step of frame ``t`` dispatched, the observation of the
+        next frame made on the host while it runs, then the step waited for; frame ``t``'s time is that whole
+        interval, so every frame pays one observation (after the last frame, frame 0's is made again, untimed
+        otherwise; frame 0's first observation, made before the first step, is not timed)."""
+        jax, source = self._jax, self.source
         key = jax.random.key(seed)
-        state = self._start(jax.random.fold_in(key, 1000), seq.observation(0))
+        F = source.num_frames if frames is None else frames
+        obs = source.observation(0)
+        state = self._start(jax.random.fold_in(key, 1000), obs)
         jax.block_until_ready(state.particles)
-        est, maps, step = [], [], []
-        for t in range(len(seq.frames) if frames is None else frames):
+        est, frame, maps, step = [], [], [], []
+        for t in range(F):
             t0 = time.perf_counter()
-            obs = seq.observation(t)
-            t1 = time.perf_counter()
-            state, info = self._step(jax.random.fold_in(key, t), state, obs)
-            jax.block_until_ready(state.particles)
-            maps.append(t1 - t0)
-            step.append(time.perf_counter() - t1)
+            if overlap:
+                state, info = self._step(jax.random.fold_in(key, t), state, obs)
+                obs = source.observation((t + 1) % F)
+                jax.block_until_ready(state.particles)
+            else:
+                obs = source.observation(t)
+                t1 = time.perf_counter()
+                state, info = self._step(jax.random.fold_in(key, t), state, obs)
+                jax.block_until_ready(state.particles)
+                maps.append(t1 - t0)
+                step.append(time.perf_counter() - t1)
+            frame.append(time.perf_counter() - t0)
             est.append(np.asarray(info.estimate, np.float64))
-        return TrackerRun(np.stack(est), np.asarray(maps), np.asarray(step))
+        if overlap:
+            return TrackerRun(np.stack(est), np.asarray(frame))
+        return TrackerRun(np.stack(est), np.asarray(frame), np.asarray(maps), np.asarray(step))
 
 
 def label(load: float) -> str:

@@ -20,9 +20,13 @@ it times, alternating which of the two goes first from round to round:
   pthreads, no BMP output), its per-frame time the median interval between the "Processing
   frame i" lines it prints (flushed; the last frame ends when the process exits; each frame includes bodytrack's
   reading of the BMPs, its edge maps and the annealed filter step) against jaxmocap's PARSEC tracker
-  (:func:`jaxmocap.parsec.annealing.parsec_apf` + the PARSEC likelihood, as ``benchmarks/experiments/parsec_track.py``
-  runs it, seed 0): per frame the host edge/foreground maps plus the compiled filter step (all layers), median over
-  the frames; compiled before the first round.
+  (:class:`bodytrack.Tracker`: :func:`jaxmocap.parsec.annealing.parsec_apf` + the PARSEC likelihood, as
+  ``benchmarks/experiments/parsec_track.py`` runs it, seed 0, compiled before the first round), median over the
+  frames, each frame's observation read from the sequence folder (the BMPs decoded, the edge and foreground maps
+  made) as bodytrack reads it, timed two ways after the same bodytrack run: **overlapped** (the rows "tracker N ×
+  L s/frame"), as ``jaxmocap track``'s frame loop runs: the step of a frame dispatched and the next frame's
+  observation made on the host while it runs, each frame paying one observation; and **not overlapped** (the rows
+  "tracker, frames not overlapped"): the frame's observation, then its step.
 
 * **likelihood, a new process** (``--auto-rounds``): the same likelihood timed by a child process started in the
   condition, which chooses XLA's CPU threads as ``jaxmocap`` does by default (``--cpu-threads auto``,
@@ -83,29 +87,33 @@ class Jaxmocap:
         self.ll(self.X, self.obs0).block_until_ready()
         self.trackers = {c: bt.Tracker(seq, *c) for c in TRACKER_CONFIGS}
         for c in TRACKER_CONFIGS:  # compile
-            self.frames(c)
+            self.frames(c, overlap=False)
         self.against = {}
         if against is not None:  # the same trackers built from the package of revision ``against``
             package = sys.modules[common.package_at(against, "parsec.track").__name__.split(".")[0]]
             self.against = {c: bt.Tracker(seq, *c, package=package) for c in TRACKER_CONFIGS}
             for c in TRACKER_CONFIGS:
-                self.against[c].run(0)
+                self.against[c].run(0, overlap=False)
 
     def likelihood_us(self, repeats: int) -> tuple[float, float]:
         """:func:`likelihood_us` of the likelihood compiled here."""
         return likelihood_us(self.ll, self.X, self.obs0, repeats)
 
-    def frames(self, config: tuple[int, int], seed: int = 0) -> float:
-        """Seconds per frame, median over the frames: host maps of frame ``t`` + the compiled filter step."""
-        return self.frames_at(THIS, config, seed)
+    def frames(self, config: tuple[int, int], seed: int = 0, overlap: bool = True) -> float:
+        """Seconds per frame, median over the frames (:meth:`bodytrack.Tracker.run`): with ``overlap`` as
+        ``jaxmocap track`` runs its frames (the next frame's observation made while the step runs), else the
+        frame's observation and then its step."""
+        return self.frames_at(THIS, config, seed, overlap)
 
-    def frames_at(self, name: str, config: tuple[int, int], seed: int = 0) -> float:
+    def frames_at(self, name: str, config: tuple[int, int], seed: int = 0, overlap: bool = True) -> float:
         """:meth:`frames` of this checkout (``name`` :data:`THIS`) or of the ``against`` revision."""
         trackers = self.trackers if name == THIS else self.against
-        return trackers[config].run(seed).per_frame
+        return trackers[config].run(seed, overlap=overlap).per_frame
 
 
 THIS = "this checkout"
+#: the start of the measurement names of the tracker timed with its frames one after the other (not overlapped)
+SERIAL = "tracker, frames not overlapped,"
 #: the measurement name of the likelihood timed in a new process per call (``--auto-rounds``)
 AUTO = "likelihood µs/particle, new process, auto threads"
 
@@ -153,7 +161,8 @@ def against_table(jm: Jaxmocap, rev: str, rounds: int, log=print) -> str:
     jobs = {f"{n} × {ly}": (lambda name, c=(n, ly): jm.frames_at(name, c)) for n, ly in TRACKER_CONFIGS}
     rows = bt.revisions_side_by_side(rounds, names, jobs, log=log)
     lines = [
-        f"Tracker s/frame, this checkout against `{rev}` (its `jaxmocap/` package), interleaved in one process; "
+        f"Tracker s/frame (frames overlapped), this checkout against `{rev}` (its `jaxmocap/` package), interleaved in "
+        "one process; "
         f"ratio = {rev} ÷ this checkout (above 1: this checkout faster).",
         "",
         f"| tracker | condition | load (min–max) | this checkout (median) | {rev} (median) | ratio per round | "
@@ -211,10 +220,21 @@ def run(rounds: int, particles: int, repeats: int, log=print, against: str | Non
         jobs[AUTO] = (lambda: ll_bodytrack()[lw], ll_child)
     for n, ly in TRACKER_CONFIGS:
         for model in bt.MODELS:
-            jobs[f"tracker {n} × {ly} s/frame, bodytrack {model}"] = (
-                lambda n=n, ly=ly, m=model: float(np.median(bt.bodytrack_frames(n, ly, model=m))),
-                lambda c=(n, ly): jm.frames(c),
+            # one bodytrack run against ours both ways: overlapped (as ``jaxmocap track`` runs) and one after the
+            # other (the observation, then the step), the two orders alternating with bodytrack's
+            names = (
+                f"tracker {n} × {ly} s/frame, bodytrack {model}",
+                f"{SERIAL} {n} × {ly}, bodytrack {model}",
             )
+
+            def theirs(n=n, ly=ly, m=model, names=names):
+                v = float(np.median(bt.bodytrack_frames(n, ly, model=m)))
+                return dict.fromkeys(names, v)
+
+            def ours(c=(n, ly), names=names):
+                return {names[0]: jm.frames(c, overlap=True), names[1]: jm.frames(c, overlap=False)}
+
+            jobs[names[0]] = (theirs, ours)
     try:
         rows = bt.side_by_side(jobs, rounds, log)
     finally:

@@ -121,32 +121,38 @@ class ParsecSource:
         self.view_names = tuple(f"Camera{k + 1}" for k in range(n))
         self.description = {"parsec_sequence": os.fspath(root)}
 
+    def _camera(self, t: int, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Camera ``k``'s grey image and binary foreground map of frame ``t``, ``(H, W) uint8`` each, checked
+        against the calibration's image size."""
+        name = f"image{t:04d}.bmp"
+        pair = []
+        for kind in ("CAM", "FG"):
+            p = self.root / f"{kind}{k + 1}" / name
+            a = images.load_image(p)
+            w, h = self.rig.image_size[k] if self.rig.image_size[k] != (0, 0) else (a.shape[1], a.shape[0])
+            if a.shape != (h, w):
+                raise MocapInputError(p, f"image is {a.shape[1]}x{a.shape[0]}, expected {w}x{h}")
+            pair.append(a)
+        return pair[0], images.foreground_map(pair[1])
+
     def images(self, t: int) -> tuple[np.ndarray, np.ndarray]:
-        """Frame ``t``: grey images and binary foreground maps, ``(V, H, W) uint8`` each (rows from the top)."""
-        ims, fgs = [], []
-        for k in range(self.num_views):
-            name = f"image{t:04d}.bmp"
-            pairs = []
-            for kind in ("CAM", "FG"):
-                p = self.root / f"{kind}{k + 1}" / name
-                a = images.load_image(p)
-                w, h = (
-                    self.rig.image_size[k] if self.rig.image_size[k] != (0, 0) else (a.shape[1], a.shape[0])
-                )
-                if a.shape != (h, w):
-                    raise MocapInputError(p, f"image is {a.shape[1]}x{a.shape[0]}, expected {w}x{h}")
-                pairs.append(a)
-            ims.append(pairs[0])
-            fgs.append(images.foreground_map(pairs[1]))
-        return np.stack(ims), np.stack(fgs)
+        """Frame ``t``: grey images and binary foreground maps, ``(V, H, W) uint8`` each (rows from the top); the
+        cameras read side by side (:func:`jaxmocap.parsec.images.per_camera`)."""
+        pairs = images.per_camera(lambda k: self._camera(t, k), self.num_views)
+        return np.stack([a for a, _ in pairs]), np.stack([f for _, f in pairs])
 
     def observation(self, t: int):
         """The PARSEC likelihood's observation of frame ``t`` (:func:`jaxmocap.parsec.likelihood.observation`:
-        bodytrack's edge maps, §6.1, and its binary foreground maps)."""
+        bodytrack's edge maps, §6.1, and its binary foreground maps): each camera's images read and its edge map
+        computed in one task, the cameras side by side (:func:`jaxmocap.parsec.images.per_camera`)."""
         from jaxmocap.parsec import likelihood as parsec_likelihood
 
-        ims, fgs = self.images(t)
-        return parsec_likelihood.observation(np.stack([images.edge_map(im) for im in ims]), fgs)
+        def camera(k):
+            im, fg = self._camera(t, k)
+            return images.edge_map(im), fg
+
+        pairs = images.per_camera(camera, self.num_views)
+        return parsec_likelihood.observation(np.stack([e for e, _ in pairs]), np.stack([f for _, f in pairs]))
 
     def close(self) -> None:
         pass
@@ -181,7 +187,7 @@ class ParsecSequence:
 
     def edge_maps(self, frame: int) -> np.ndarray:
         """bodytrack's edge maps ``(V, H, W) uint8`` of frame index ``frame`` (0-based into ``frames``)."""
-        return np.stack([images.edge_map(im) for im in self.images[frame]])
+        return images.edge_maps(self.images[frame])
 
     def observation(self, frame: int):
         """The likelihood's :class:`jaxmocap.parsec.likelihood.Observation` of frame index ``frame``."""

@@ -19,6 +19,7 @@ from jaxmocap.errors import MocapInputError
 from jaxmocap.geometry import body
 from jaxmocap.parsec import cylinders
 from jaxmocap.parsec import likelihood as pl
+from jaxmocap.parsec.inputs import ParsecSource
 
 DATA = pathlib.Path(__file__).parents[1] / "data" / "parsec"
 PROBE_POSES = ("InitialPose.txt", "poses.txt line 0", "poses.txt line 1")
@@ -189,12 +190,24 @@ def test_load_sequence(pdata, tmp_path):
     np.testing.assert_allclose(seq.cameras.eye, np.stack([cams[k] for k in range(1, 5)]), atol=2e-3)
     np.testing.assert_array_equal(seq.edge_maps(0), pdata["edge_ref"])
     np.testing.assert_array_equal(np.asarray(seq.observation(0).fg), (pdata["fg_ref"] != 0).astype(np.uint8))
+    # read frame by frame as `jaxmocap track` reads it (the cameras side by side): the same maps
+    source = ParsecSource(root)
+    obs = source.observation(0)
+    np.testing.assert_array_equal(np.asarray(obs.edge), pdata["edge_ref"])
+    np.testing.assert_array_equal(np.asarray(obs.fg), (pdata["fg_ref"] != 0).astype(np.uint8))
+    ims, fgs = source.images(1)
+    np.testing.assert_array_equal(ims, pdata["frames"][1][0])
+    np.testing.assert_array_equal(fgs, seq.foreground[1])
     # a missing camera image names the file
     (root / "FG3" / "image0001.bmp").unlink()
+    with pytest.raises(MocapInputError, match="FG3"):
+        source.observation(1)
     assert parsec.load_sequence(root).frames == (0,)
     (root / "CAM2" / "image0000.bmp").write_bytes(b"not an image")
     with pytest.raises(MocapInputError, match="CAM2"):
         parsec.load_sequence(root)
+    with pytest.raises(MocapInputError, match="CAM2"):
+        source.observation(0)
 
 
 def test_edge_map_equals_bodytrack(pdata):
@@ -257,6 +270,26 @@ def test_edge_map_equals_the_direct_float32_computation(threshold):
     for im in (rng.integers(0, 256, (60, 80)), smooth, steps):
         im = im.astype(np.uint8)
         np.testing.assert_array_equal(parsec.edge_map(im, threshold), _edge_map_direct(im, threshold))
+
+
+def test_edge_maps_side_by_side_are_the_direct_computation():
+    """:func:`edge_maps` (the cameras in threads, each thread's buffers reused) gives every camera the direct
+    float32 computation bit for bit, also after images of another size (the buffers remade) and into ``out``."""
+    rng = np.random.default_rng(3)
+    for shape in ((60, 80), (37, 51), (60, 80)):
+        ims = rng.integers(0, 256, (5, *shape)).astype(np.uint8)
+        ims[2] = np.tile(np.repeat(np.arange(0, shape[1]) % 7 * 3, 1), (shape[0], 1)).astype(np.uint8)
+        got = parsec.images.edge_maps(ims, 16.0)
+        assert got.shape == ims.shape and got.dtype == np.uint8
+        for k in range(len(ims)):
+            np.testing.assert_array_equal(got[k], _edge_map_direct(ims[k], 16.0))
+    out = np.full(ims.shape[1:], 77, np.uint8)
+    assert parsec.edge_map(ims[0], out=out) is out
+    np.testing.assert_array_equal(out, _edge_map_direct(ims[0], 16.0))  # margins zeroed too
+    with pytest.raises(ValueError, match="uint8"):
+        parsec.edge_map(ims[0], out=np.zeros(ims.shape[1:], np.int32))
+    with pytest.raises(ValueError, match="one size"):
+        parsec.images.edge_maps([ims[0], ims[0][:-1]])
 
 
 # ---------------------------------------------------------------------------------------------------------------
