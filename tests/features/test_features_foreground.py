@@ -17,6 +17,8 @@ from jaxmocap.features.foreground import (
     StaticBackground,
     brightness_chromaticity_distortion,
     depth_foreground,
+    shadow_mask,
+    without_shadows,
 )
 
 NOISE = 3.0
@@ -101,6 +103,36 @@ def test_global_darkening_is_shadow_like(scene):
     f, m = scene.frame(rng, 6, gain=0.8)
     assert iou(plain.update(f), m) < 0.5  # a static threshold alone breaks under the illumination change
     assert iou(with_shadow.update(f), m) >= 0.9
+
+
+def test_shadows_removed_at_the_masked_pixels_only_are_the_whole_frame_test(scene):
+    """:func:`without_shadows` (the distortions at the masked pixels only) equals the mask and the complement of
+    the whole frame's :func:`shadow_mask`, bit for bit: a scalar noise (the plate background's) and a per-pixel
+    σ (the Gaussian background's), a cast shadow and a global darkening; an empty mask stays empty."""
+    rng = np.random.default_rng(4)
+    empties = np.array([scene.frame(rng)[0] for _ in range(5)])
+    static = StaticBackground.from_frames(empties, shadow=ShadowParams())
+    params = ShadowParams()
+    std = rng.uniform(1.0, 6.0, scene.bg.shape).astype(np.float32)
+    frames = [
+        scene.frame(rng, 8, shadow=scene.shadow_region(8))[0],
+        scene.frame(rng, 3, gain=0.8)[0],
+        scene.frame(rng)[0],
+    ]
+    removed = 0
+    for f in frames:
+        raw = static.raw_mask(f)
+        for mean, sigma, frame in (
+            (static.background, static.noise_std, f),
+            (static.background.astype(np.float32), std, f.astype(np.float32)),
+        ):
+            want = cv2.bitwise_and(raw, cv2.bitwise_not(shadow_mask(frame, mean, sigma, params)))
+            got = without_shadows(raw, frame, mean, sigma, params)
+            np.testing.assert_array_equal(got, want)
+            removed += int(np.count_nonzero(raw) - np.count_nonzero(got))
+    assert removed > 1000  # the shadows were there to remove
+    empty = np.zeros(scene.bg.shape[:2], np.uint8)
+    assert not without_shadows(empty, frames[0], static.background, 4.0, params).any()
 
 
 def test_brightness_and_chromaticity_distortion_closed_form():
