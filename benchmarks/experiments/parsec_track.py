@@ -8,8 +8,10 @@ spread of our estimates (mean joint distance between the estimates of two seeds,
 Speed, against bodytrack built from source by this script (``benchmarks/bodytrack.py``: ``build/bodytrack``),
 interleaved A/B in ``--rounds`` rounds, each as found and with one busy-loop process started by the script
 (:func:`bodytrack.side_by_side`, the rounds of ``benchmarks/perf/vs_bodytrack.py``): seconds per frame of
-bodytrack's serial and pthreads builds (intervals between its "Processing frame" lines) against ours (the host
-edge/foreground maps plus the compiled filter step, all layers, seed 0; median over the frames), the ratio per
+bodytrack's serial and pthreads builds (intervals between its "Processing frame" lines) against ours (the frame's
+observation, read from the sequence folder as bodytrack reads it: BMPs decoded, edge and foreground maps made; then
+the compiled filter step, all layers, seed 0; frames not overlapped, :meth:`bodytrack.Tracker.run`; median over
+the frames), the ratio per
 round, its median, and the 1-minute load average of each round. First-frame latency (unless ``--no-latency``): a
 one-frame ``jaxmocap track`` of the sequence in a new process (process start to exit, outputs written) at
 bodytrack's 4000 × 5, cold (an empty compilation cache directory, ``JAXMOCAP_CACHE_DIR``) and then warm (the same
@@ -246,11 +248,12 @@ def main(argv=None) -> int:
         f"bodytrack built from `{bodytrack.SRC}` (g++ -O2) and run by this script; jaxmocap on JAX {jax.__version__} "
         f"({dev.platform}), XLA_FLAGS=`{os.environ.get('XLA_FLAGS', '')}`, compiler options "
         f"{host.particle_options() or 'XLA defaults'}; {os.cpu_count()} cores ({host.description()}). "
-        f"{a.rounds} rounds; per frame: bodytrack's interval between its frame lines, ours the host maps + the "
-        "compiled filter step (seed 0, after compilation), median over the 2 frames.\n\n"
+        f"{a.rounds} rounds; per frame: bodytrack's interval between its frame lines, ours the frame's "
+        "observation (read from the folder: images, edge and foreground maps) + the compiled filter step (seed 0, "
+        "after compilation, frames not overlapped), median over the 2 frames.\n\n"
         + bodytrack.table(rows)
         + "\nOurs split (median over the rounds' frames):\n\n"
-        "| config | condition | runs | filter step s | edge/fg maps s | total s |\n|---|---|---|---|---|---|\n"
+        "| config | condition | runs | filter step s | observation s | total s |\n|---|---|---|---|---|---|\n"
         + "\n".join(split_lines(runs))
         + "\n"
     )
