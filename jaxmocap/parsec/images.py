@@ -160,6 +160,16 @@ _POOL: ThreadPoolExecutor | None = None
 _POOL_LOCK = threading.Lock()
 
 
+def _forget_pool() -> None:
+    """In a child made by ``fork``: the parent's threads do not exist there, so its pool is made anew."""
+    global _POOL, _POOL_LOCK
+    _POOL, _POOL_LOCK = None, threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_pool)
+
+
 def _pool() -> ThreadPoolExecutor:
     """The threads that compute one frame's edge maps side by side: one per CPU this process may use (at most 4),
     made once."""
@@ -185,7 +195,7 @@ def edge_maps(grays, threshold: float = 16.0) -> np.ndarray:
     one size) → ``(V, H, W) uint8``, the cameras side by side (:func:`per_camera`); the same maps as one
     :func:`edge_map` per camera, bit for bit.
 
-    SequenceB_2's four 640×480 images (2-core AMD EPYC without AVX-512, median of 100 calls, three runs): 16.4–18.7
+    SequenceB_2's four 640×480 images (2-core AMD EPYC without AVX-512, median of 100 calls, three runs): 16.4–19.9
     ms one camera after the other with a fresh array per intermediate image (before the buffers of
     :func:`_workspace`), 6.7–7.5 ms one after the other with them, 3.7–4.4 ms side by side."""
     ims = [np.asarray(g) for g in grays]

@@ -4,9 +4,12 @@ References: the values measured with the unmodified bodytrack C++ code on sequen
 see PROVENANCE.md there), OpenCV's ``projectPoints`` and closed forms.
 """
 
+import os
 import pathlib
 import re
 import shutil
+import signal
+import time
 
 import cv2
 import jax
@@ -270,6 +273,35 @@ def test_edge_map_equals_the_direct_float32_computation(threshold):
     for im in (rng.integers(0, 256, (60, 80)), smooth, steps):
         im = im.astype(np.uint8)
         np.testing.assert_array_equal(parsec.edge_map(im, threshold), _edge_map_direct(im, threshold))
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="fork")
+def test_edge_maps_in_a_forked_child():
+    """A child made by ``fork`` after the parent's threads computed maps makes its own threads (the parent's pool
+    has no threads there: without its reset the child's first frame would wait for ever)."""
+    ims = np.random.default_rng(5).integers(0, 256, (3, 40, 50)).astype(np.uint8)
+    want = parsec.images.edge_maps(ims)  # the pool's threads started in this process
+    r, w = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # the child: compute, report, leave without running the parent's exit handlers
+        try:
+            ok = np.array_equal(parsec.images.edge_maps(ims), want)
+            os.write(w, b"1" if ok else b"0")
+        finally:
+            os._exit(0)
+    os.close(w)
+    deadline = time.monotonic() + 20.0
+    while time.monotonic() < deadline:
+        done, _ = os.waitpid(pid, os.WNOHANG)
+        if done:
+            break
+        time.sleep(0.05)
+    else:
+        os.kill(pid, signal.SIGKILL)
+        os.waitpid(pid, 0)
+        pytest.fail("the forked child's edge maps did not finish")
+    assert os.read(r, 1) == b"1"
+    os.close(r)
 
 
 def test_edge_maps_side_by_side_are_the_direct_computation():
