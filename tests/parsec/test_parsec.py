@@ -10,6 +10,7 @@ import re
 import shutil
 import signal
 import time
+import warnings
 
 import cv2
 import jax
@@ -282,7 +283,9 @@ def test_edge_maps_in_a_forked_child():
     ims = np.random.default_rng(5).integers(0, 256, (3, 40, 50)).astype(np.uint8)
     want = parsec.images.edge_maps(ims)  # the pool's threads started in this process
     r, w = os.pipe()
-    pid = os.fork()
+    with warnings.catch_warnings():  # JAX warns at every fork once its backends run (this child calls no JAX)
+        warnings.filterwarnings("ignore", "os.fork", RuntimeWarning)
+        pid = os.fork()
     if pid == 0:  # the child: compute, report, leave without running the parent's exit handlers
         try:
             ok = np.array_equal(parsec.images.edge_maps(ims), want)
