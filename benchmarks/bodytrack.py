@@ -175,8 +175,8 @@ class Tracker:
         waits for its particles. ``overlap=True``: as ``jaxmocap track``'s frame loop runs them
         (:class:`jaxmocap.tracking.loop.TrackingLoop`): the step of frame ``t`` dispatched, the observation of the
         next frame made on the host while it runs, then the step waited for; frame ``t``'s time is that whole
-        interval, so every frame pays one observation (after the last frame, frame 0's is made again, untimed
-        otherwise; frame 0's first observation, made before the first step, is not timed)."""
+        interval, so every frame pays one observation (the last frame makes frame 0's again; frame 0's first
+        observation, made before the first step, is not timed)."""
         jax, source = self._jax, self.source
         key = jax.random.key(seed)
         F = source.num_frames if frames is None else frames

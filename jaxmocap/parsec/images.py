@@ -84,10 +84,11 @@ def edge_map(gray: np.ndarray, threshold: float = 16.0, out: np.ndarray | None =
     (:func:`_binary_row_blur`, the same float32 sums; the 7-bit codes by an integer filter, exact). The column pass
     is order-dependent and accumulates directly, tap by tap in kernel order.
 
-    The intermediate images live in buffers kept per thread and image size (:func:`_workspace`), not allocated per
-    call: on a machine where touching fresh memory is slow (page faults of a virtual machine) the ten fresh 0.3–1.2
-    MB arrays of a 640×480 image cost more than the arithmetic (5–6 ms against 1.4 ms a camera, ``edge_maps``'s
-    docstring; a 640×480 image's buffers are 6.1 MB). ``out``: an ``(H, W) uint8`` array to write the map into (returned); a new one when None.
+    The intermediate images live in buffers kept per thread and image size (:func:`_workspace`: 7.0 MB for a
+    640×480 image), not allocated per call: on a machine where touching fresh memory is slow (page faults of a
+    virtual machine) the ten fresh 0.3–1.2 MB arrays of a 640×480 image cost more than the arithmetic (5–6 ms
+    against 1.2–1.4 ms a camera, :func:`edge_maps`). ``out``: an ``(H, W) uint8`` array to write the map into
+    (returned); a new one when None.
     """
     import cv2
 
