@@ -34,7 +34,11 @@ difference of its log-likelihoods from the default's (0: bit-identical).
     .venv/bin/python benchmarks/perf/bench_parsec.py --bodytrack-rounds 0 --edge-chunks 8 --ab-rounds 15
 
 ``--against REV`` does the same for the likelihood as it was at git revision ``REV``: the whole ``jaxmocap`` package
-of ``REV`` (``git archive``, so its cylinders and cameras too) imported beside this checkout's:
+of ``REV`` (``git archive``, so its cylinders and cameras too) imported beside this checkout's; and, where
+sequenceB_2's folder is there (``benchmarks/bodytrack.py``: ``$JAXMOCAP_DATA/parsec/sequenceB_2``), for the host side
+of a frame, the observation of frame 0 as ``jaxmocap track`` reads it (``ParsecSource.observation``: four cameras'
+BMPs decoded, binarised and filtered into bodytrack's edge maps), each revision's own, in ``--ab-rounds``
+interleaved rounds of 20 calls (median per round; the maps compared bit for bit):
 
     .venv/bin/python benchmarks/perf/bench_parsec.py --bodytrack-rounds 0 --against main --ab-rounds 11
 """
@@ -162,6 +166,31 @@ def likelihood_at(rev: str):
     return common.package_at(rev, "parsec.likelihood")
 
 
+def observation_ab(rev: str, rounds: int, calls: int = 20) -> None:
+    """Interleaved A/B of ``ParsecSource.observation(0)`` of sequenceB_2's folder: revision ``rev``'s package
+    against this checkout's (module docstring); prints ms per call per round and the ratios."""
+    from jaxmocap.parsec.inputs import ParsecSource
+
+    at = common.package_at(rev, "parsec.inputs")
+    sources = {rev: at.ParsecSource(bodytrack.SEQ), "this checkout": ParsecSource(bodytrack.SEQ)}
+    maps = {k: s.observation(0) for k, s in sources.items()}
+    same = all(np.array_equal(np.asarray(a), np.asarray(b)) for a, b in zip(*maps.values(), strict=True))
+    times: dict = {k: [] for k in sources}
+    for r in range(rounds):
+        for k in list(sources)[:: 1 if r % 2 == 0 else -1]:
+            obs = sources[k].observation
+            times[k].append(common.median_seconds(lambda o=obs: jax.block_until_ready(o(0)), calls, warmup=1))
+    ratios = np.asarray(times[rev]) / np.asarray(times["this checkout"])
+    print(
+        f"\nA frame's observation (ParsecSource.observation, 4 cameras, 640x480) at {rev} and now, {rounds} "
+        f"interleaved rounds of {calls} calls; the same maps: {same}"
+    )
+    for k, v in times.items():
+        print(f"  {k:14s} ms per call, per round: " + ", ".join(f"{1e3 * t:.2f}" for t in v))
+    print(f"  {rev} ÷ this checkout per round: " + ", ".join(f"{q:.2f}" for q in ratios))
+    print(f"  median: {np.median(ratios):.2f}")
+
+
 def main(args):
     seq = DATA / "sequenceB_2"
     shape = parsec.load_body_shape(seq / "BodyShapeParameters.txt")
@@ -246,6 +275,8 @@ def main(args):
             "this checkout": f,
         }
         ab_table(progs, Xj, obs, args.ab_rounds, f"The likelihood at {args.against} and now")
+        if bodytrack.SEQ.is_dir():
+            observation_ab(args.against, args.ab_rounds)
     if args.bodytrack_rounds > 0:
         bodytrack.build()
         reps = 5
