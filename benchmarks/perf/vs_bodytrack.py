@@ -34,6 +34,11 @@ it times, alternating which of the two goes first from round to round:
   when the child starts) and reads its compiled program from a persistent compilation cache shared by the
   children; the threads chosen are reported per round. A process's threads are fixed when it starts, so the
   in-process likelihood above keeps the threads of the condition the script started in.
+* **tracker, a new process** (``--auto-rounds``, the rows "tracker s/frame, new process, auto threads"): each
+  configuration's tracker likewise in a child process started in the condition with the threads ``jaxmocap track``
+  would choose there, its programs read from the same cache, run once untimed and twice timed (frames
+  overlapped; median over the four frames), against one run of each bodytrack build: what a command started on a
+  busy machine gets.
 
 Each round records the 1-minute load average when it starts (``os.getloadavg``); a condition is labelled *idle*
 only when that load is below 1.0, otherwise *loaded* with the load. The ratio is bodytrack's time over jaxmocap's
@@ -114,6 +119,8 @@ class Jaxmocap:
 THIS = "this checkout"
 #: the start of the measurement names of the tracker timed with its frames one after the other (not overlapped)
 SERIAL = "tracker, frames not overlapped,"
+#: the start of the measurement names of the tracker timed in a new process per round (``--auto-rounds``)
+AUTO_TRACKER = "tracker s/frame, new process, auto threads,"
 #: the measurement name of the likelihood timed in a new process per call (``--auto-rounds``)
 AUTO = "likelihood µs/particle, new process, auto threads"
 
@@ -132,25 +139,48 @@ def likelihood_child(particles: int, repeats: int) -> dict:
                 other_busy_cpus=auto.get("cpu_threads_auto", {}).get("other_busy_cpus", 0.0))  # fmt: skip
 
 
-def likelihood_in_new_process(particles: int, repeats: int, cache: pathlib.Path) -> dict:
-    """:func:`likelihood_child` run by ``python vs_bodytrack.py --likelihood-child`` now (in the condition the
-    caller set up)."""
+def tracker_child(particles: int, layers: int) -> dict:
+    """In a new process: XLA's CPU threads chosen as ``jaxmocap`` chooses them (``--cpu-threads auto``), then the
+    :class:`bodytrack.Tracker` at ``particles`` × ``layers`` (its programs from the persistent compilation cache of
+    ``JAXMOCAP_CACHE_DIR``), run once untimed and twice timed, frames overlapped as ``jaxmocap track`` runs them.
+    Returns ``{s, threads, other_busy_cpus}``: ``s`` the median seconds per frame over the timed runs' frames."""
+    host.limit_cpu_threads(host.choose_cpu_threads(host.cpu_sample()))
+    from jaxmocap import compilation_cache
+
+    compilation_cache.enable()
+    tracker = bt.Tracker(parsec.load_sequence(bt.SEQ), particles, layers)
+    tracker.run(0, overlap=True)
+    frames = np.concatenate([tracker.run(seed, overlap=True).frame for seed in (0, 1)])
+    auto = host.thread_summary()
+    return dict(s=float(np.median(frames)), threads=auto["xla_cpu_threads"],
+                other_busy_cpus=auto.get("cpu_threads_auto", {}).get("other_busy_cpus", 0.0))  # fmt: skip
+
+
+def in_new_process(flags: list[str], cache: pathlib.Path) -> dict:
+    """``python vs_bodytrack.py FLAGS`` (a child mode) run now, in the condition the caller set up, its programs
+    cached in ``cache``; the JSON of its last line."""
     import json
     import subprocess
 
     env = dict(os.environ, JAXMOCAP_CACHE_DIR=str(cache))
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
-    argv = [
-        sys.executable,
-        __file__,
-        "--likelihood-child",
-        "--particles",
-        str(particles),
-        "--repeats",
-        str(repeats),
-    ]
-    proc = subprocess.run(argv, env=env, capture_output=True, text=True, check=True)
+    proc = subprocess.run(
+        [sys.executable, __file__, *flags], env=env, capture_output=True, text=True, check=True
+    )
     return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def tracker_in_new_process(particles: int, layers: int, cache: pathlib.Path) -> dict:
+    """:func:`tracker_child` run by ``python vs_bodytrack.py --tracker-child`` now."""
+    return in_new_process(["--tracker-child", str(particles), str(layers)], cache)
+
+
+def likelihood_in_new_process(particles: int, repeats: int, cache: pathlib.Path) -> dict:
+    """:func:`likelihood_child` run by ``python vs_bodytrack.py --likelihood-child`` now (in the condition the
+    caller set up)."""
+    return in_new_process(
+        ["--likelihood-child", "--particles", str(particles), "--repeats", str(repeats)], cache
+    )
 
 
 def against_table(jm: Jaxmocap, rev: str, rounds: int, log=print) -> str:
@@ -204,7 +234,7 @@ def run(rounds: int, particles: int, repeats: int, log=print, against: str | Non
         return {lw: wall, lc: cpu}
 
     jobs = {lw: (ll_bodytrack, ll_jaxmocap)}
-    children = []
+    children, tracker_children = [], []
     # the children's compilation cache, removed after the rounds
     cache_dir = tempfile.TemporaryDirectory(prefix="vs_bodytrack_cache_")
     cache = pathlib.Path(cache_dir.name)
@@ -218,6 +248,25 @@ def run(rounds: int, particles: int, repeats: int, log=print, against: str | Non
             return r["us"]
 
         jobs[AUTO] = (lambda: ll_bodytrack()[lw], ll_child)
+        for n, ly in TRACKER_CONFIGS:
+            tracker_in_new_process(n, ly, cache)  # compiles into the cache
+            names = tuple(f"{AUTO_TRACKER} {n} × {ly}, bodytrack {m}" for m in bt.MODELS)
+
+            def theirs(n=n, ly=ly, names=names):
+                return {
+                    w: float(np.median(bt.bodytrack_frames(n, ly, model=m)))
+                    for w, m in zip(names, bt.MODELS, strict=True)
+                }
+
+            def ours(n=n, ly=ly, names=names):
+                r = tracker_in_new_process(n, ly, cache)
+                tracker_children.append(dict(r, config=f"{n} × {ly}"))
+                log(
+                    f"  new process, {n} × {ly}: {r['threads']} thread(s), others kept {r['other_busy_cpus']:.2f} busy"
+                )
+                return dict.fromkeys(names, r["s"])
+
+            jobs[names[0]] = (theirs, ours)
     for n, ly in TRACKER_CONFIGS:
         for model in bt.MODELS:
             # one bodytrack run against ours both ways: overlapped (as ``jaxmocap track`` runs) and one after the
@@ -241,18 +290,30 @@ def run(rounds: int, particles: int, repeats: int, log=print, against: str | Non
         cache_dir.cleanup()
     for row, child in zip([r for r in rows if r["what"] == AUTO], children, strict=True):
         row["threads"] = child["threads"]
+    # each tracker child gave two rows (against bodytrack serial, then pthreads), in the order the children ran
+    pairs = [r for r in rows if r["what"].startswith(AUTO_TRACKER)]
+    for i, child in enumerate(tracker_children):
+        for row in pairs[2 * i : 2 * i + 2]:
+            row["threads"] = child["threads"]
     return rows, (against_table(jm, against, rounds, log) if against is not None else None)
 
 
 def auto_note(rows: list[dict]) -> str:
-    """The threads the new processes chose, per condition."""
-    sel = [r for r in rows if r["what"] == AUTO]
-    if not sel:
+    """The threads the new processes chose, per condition (the likelihood's, then each tracker's)."""
+    groups = {"the likelihood's": [r for r in rows if r["what"] == AUTO]}
+    for r in rows:
+        if r["what"].startswith(AUTO_TRACKER) and r["what"].endswith("serial"):
+            config = r["what"][len(AUTO_TRACKER) :].split(",")[0].strip()
+            groups.setdefault(f"the {config} tracker's", []).append(r)
+    if not groups["the likelihood's"]:
         return ""
-    per = {c: [r["threads"] for r in sel if r["condition"] == c] for c in bt.CONDITIONS}
+    parts = []
+    for what, sel in groups.items():
+        per = {c: [r["threads"] for r in sel if r["condition"] == c] for c in bt.CONDITIONS}
+        parts.append(what + " " + "; ".join(f"{c}: {', '.join(map(str, t))}" for c, t in per.items()))
     return (
         "XLA CPU threads chosen by the new processes (`--cpu-threads auto`), per round: "
-        + "; ".join(f"{c}: {', '.join(map(str, t))}" for c, t in per.items())
+        + "; ".join(parts)
         + "."
     )
 
@@ -280,10 +341,16 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--auto-rounds",
         action="store_true",
-        help="also the likelihood in a new process per round, threads chosen as --cpu-threads auto",
+        help="also the likelihood and the trackers in a new process per round, threads chosen as --cpu-threads auto",
     )
     ap.add_argument("--likelihood-child", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--tracker-child", nargs=2, type=int, metavar=("N", "L"), help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
+    if a.tracker_child:
+        import json
+
+        print(json.dumps(tracker_child(*a.tracker_child)))
+        return 0
     if a.likelihood_child:
         import json
 
