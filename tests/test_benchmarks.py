@@ -356,3 +356,19 @@ def test_pose2sim_procedure_rejects_the_view_that_disagrees_and_fills_short_gaps
     fine[15:27, ankle] = False
     assert np.abs(got[fine] - X[fine]).max() < 2e-3
     assert rejected == pytest.approx(15 / (T * J))
+
+
+def test_host_choices_are_the_four_compilations_this_cpus_first():
+    """``bench_parsec.py --host-choices`` times the four ways :mod:`jaxmocap.host` compiles PARSEC's likelihood, the
+    first row the one this CPU gets (``jaxmocap.host.gathers_apart`` and ``particle_options``)."""
+    from jaxmocap import host, parsec
+
+    m = runner.load("parsec")
+    seq = m.DATA / "sequenceB_2"
+    progs = m.host_choices(parsec.load_body_shape(seq / "BodyShapeParameters.txt"), parsec.load_cameras(seq))
+    names = list(progs)
+    assert len(names) == 4 and len(set(names)) == 4
+    assert [n.endswith("(this CPU's choice)") for n in names] == [True, False, False, False]
+    apart = host.gathers_apart()
+    loop = host.LOOP_FUSION.items() <= host.particle_options().items()
+    assert names[0].startswith(f"{'apart' if apart else 'fused'}, {'loop' if loop else 'fusion'} emitters")

@@ -33,6 +33,13 @@ difference of its log-likelihoods from the default's (0: bit-identical).
 
     .venv/bin/python benchmarks/perf/bench_parsec.py --bodytrack-rounds 0 --edge-chunks 8 --ab-rounds 15
 
+``--host-choices`` does the same for the four compilations :mod:`jaxmocap.host` chooses between by CPU (the
+pixel reads as gathers of their own or fused into the sampling loop, :func:`jaxmocap.host.gathers_apart`; XLA's
+loop or fusion emitters, :data:`jaxmocap.host.LOOP_FUSION`), the first row this CPU's choice — to check the choice
+on a CPU it was not measured on:
+
+    .venv/bin/python benchmarks/perf/bench_parsec.py --bodytrack-rounds 0 --host-choices --ab-rounds 9
+
 ``--against REV`` does the same for the likelihood as it was at git revision ``REV``: the whole ``jaxmocap`` package
 of ``REV`` (``git archive``, so its cylinders and cameras too) imported beside this checkout's; and, where
 sequenceB_2's folder is there (``benchmarks/bodytrack.py``: ``$JAXMOCAP_DATA/parsec/sequenceB_2``), for the host side
@@ -85,6 +92,12 @@ def _args(argv=None):
     )
     ap.add_argument(
         "--against", metavar="REV", help="A/B of the likelihood (its package) at git revision REV"
+    )
+    ap.add_argument(
+        "--host-choices",
+        action="store_true",
+        help="A/B of the four compilations jaxmocap.host chooses between (gathers apart or fused, XLA's loop or "
+        "fusion emitters)",
     )
     ap.add_argument("--ab-rounds", type=int, default=7, help="interleaved rounds of the A/B options")
     return ap.parse_args(argv)
@@ -158,6 +171,22 @@ def ab_table(progs: dict, X, obs, rounds: int, title: str, calls: int = 5) -> No
             f"| {k} | {np.median(wall[k]):.2f} | {np.median(cpu[k]):.2f} | {', '.join(f'{x:.2f}' for x in ratio)} "
             f"| **{np.median(ratio):.2f}** | {cratio:.2f} | {diff:.1e} |"
         )
+
+
+def host_choices(shape, cams) -> dict:
+    """The likelihood compiled the four ways :mod:`jaxmocap.host` chooses between (name → program), this CPU's own
+    choice first: gathers apart or fused × XLA's loop (:data:`jaxmocap.host.LOOP_FUSION`) or fusion emitters, each
+    with :data:`jaxmocap.host.COPY_REGIONS`."""
+    chosen = (host.gathers_apart(), host.LOOP_FUSION.items() <= host.particle_options().items())
+    ways = sorted(((a, loop) for a in (True, False) for loop in (True, False)), key=lambda w: w != chosen)
+    progs = {}
+    for apart, loop in ways:
+        options = dict(host.COPY_REGIONS, **(host.LOOP_FUSION if loop else {}))
+        name = f"{'apart' if apart else 'fused'}, {'loop' if loop else 'fusion'} emitters"
+        name += " (this CPU's choice)" if (apart, loop) == chosen else ""
+        fn = pl.make_loglik_batch(shape, cams, pl.Config(gathers_apart=apart))
+        progs[name] = jax.jit(fn, compiler_options=options)
+    return progs
 
 
 def likelihood_at(rev: str):
@@ -267,6 +296,14 @@ def main(args):
             cfg = pl.Config(chunk=chunk[0] if len(chunk) == 1 else chunk)
             progs[f"chunk={c}"] = pl.jit_loglik_batch(shape, cams, cfg)
         ab_table(progs, Xj, obs, args.ab_rounds, "Edge samples per loop iteration (Config.chunk)")
+    if args.host_choices:
+        ab_table(
+            host_choices(shape, cams),
+            Xj,
+            obs,
+            args.ab_rounds,
+            "The compilations jaxmocap.host chooses between",
+        )
     if args.against:
         at = likelihood_at(args.against)
         options = common.particle_options_of(at)  # the options that revision compiles it with
