@@ -210,6 +210,13 @@ SCRIPTS: dict[str, Script] = {
     "scale": Script(
         "Scaling beyond one device (sharded particles, batched runs, memory)", "perf/bench_scale.py"
     ),
+    "startup_ab": Script(
+        "Start-up of new processes with a pinned dependency against another version of it",
+        "perf/startup_ab.py",
+        "--versions ml_dtypes==0.7.0 --rounds 5 --out benchmarks/results/startup_ab.md",
+        writes=("startup_ab.md",),
+        slow=True,
+    ),
     "parsec_latency": Script(
         "First-frame latency of the PARSEC run, warm and cold, against bodytrack and a revision",
         "perf/parsec_latency.py",

@@ -372,3 +372,13 @@ def test_host_choices_are_the_four_compilations_this_cpus_first():
     apart = host.gathers_apart()
     loop = host.LOOP_FUSION.items() <= host.particle_options().items()
     assert names[0].startswith(f"{'apart' if apart else 'fused'}, {'loop' if loop else 'fusion'} emitters")
+
+
+def test_startup_ab_names_the_installed_version_of_a_requirement():
+    """``startup_ab.py`` labels this environment's side with the installed version of each requirement it swaps
+    (as the package reports it itself), whatever comparison the requirement spells."""
+    import numpy
+
+    m = runner.load("startup_ab")
+    for req in ("numpy==1.26.4", "numpy>=3", "numpy<2"):
+        assert m.installed(req) == f"numpy=={numpy.__version__}"
