@@ -10,8 +10,8 @@ Speed figures are only comparable between runs on the same :func:`description`.
 * :func:`description` — ``"AMD EPYC (family 25, model 1; AVX2, no AVX-512)"``: the model name, the x86 family and
   model numbers (they tell two CPUs of one marketing name apart) and :func:`vector_isa`.
 * :func:`particle_options` — the XLA compiler options of a gather-bound particle program (PARSEC's likelihood and
-  tracker step): copy insertion with region analysis, and XLA's loop fusion emitter instead of its default fusion
-  emitters on a CPU without AVX-512.
+  tracker step): copy insertion with region analysis; :func:`gathers_apart`, where its pixel reads run apart
+  from its sampling loops (x86 without AVX-512).
 * :func:`limit_cpu_threads` — start XLA's CPU backend with fewer intra-op threads than cores, and
   :func:`cpu_threads`, how many it has; :class:`CpuSample`, :func:`other_busy_cpus` and :func:`auto_cpu_threads`
   — how many of this process's CPUs other processes keep busy (``/proc/stat``), and the threads that leaves
@@ -51,7 +51,9 @@ __all__ = [
     "vector_isa",
 ]
 
-#: XLA's CPU compiler option that selects its loop fusion emitter instead of the fusion emitters (its default).
+#: XLA's CPU compiler option that selects its loop fusion emitter instead of the fusion emitters (its default). No
+#: longer one of :func:`particle_options` (see there); kept for the benchmarks that compare the two
+#: (``benchmarks/perf/bench_parsec.py --host-choices``).
 LOOP_FUSION = {"xla_cpu_use_fusion_emitters": False}
 
 #: XLA's CPU compiler option that runs copy insertion with region analysis (fewer copies of loop-carried arrays).
@@ -127,9 +129,8 @@ def description() -> str:
 
 def particle_options() -> dict[str, bool]:
     """Compiler options (``jax.jit(..., compiler_options=...)``) for a gather-bound particle program (PARSEC's
-    likelihood and tracker step) compiled for XLA's CPU backend: :data:`COPY_REGIONS` on every CPU, with
-    :data:`LOOP_FUSION` on an x86 CPU without AVX-512; ``{}`` for an accelerator. An option that ``XLA_FLAGS``
-    names is left out (the user's choice wins).
+    likelihood and tracker step) compiled for XLA's CPU backend: :data:`COPY_REGIONS`; ``{}`` for an
+    accelerator. An option that ``XLA_FLAGS`` names is left out (the user's choice wins).
 
     Why :data:`COPY_REGIONS`: the annealing layers and the likelihood's sampling loops are ``while`` loops whose
     carried arrays XLA's copy insertion copies every iteration when it cannot prove a copy unneeded; with its
@@ -139,28 +140,23 @@ def particle_options() -> dict[str, bool]:
     the PARSEC tracker's step at 4000 × 5 1.24× faster (1.16× beside a busy process; five interleaved rounds in
     one process).
 
-    Why :data:`LOOP_FUSION`: on an AVX2 CPU (AMD EPYC, family 25, model 1), XLA's fusion emitters turn PARSEC's
-    per-sample edge loops (a pixel index, an unsigned bounds test and a one-byte gather per sample,
-    :mod:`jaxmocap.parsec.likelihood`) into scalar code of ≈ 190 k instructions per particle and layer
-    (``valgrind --tool=callgrind``, ``benchmarks/perf/instructions.py``; 210 k before the in-bounds pixel reads,
-    about 1.6 instructions per cycle at the CPU's nominal 2.45 GHz); the loop fusion emitter's code, 171 k
-    instructions, ran the likelihood 1.69× faster in one process (``bench_parsec.py --xla-options
-    xla_cpu_use_fusion_emitters=false``, five interleaved rounds, 2026-11-29) and the whole PARSEC tracker at 4000
-    × 5 1.7× faster (``vs_bodytrack.py``). The same switch made the default tracker's step (other cues, other
-    loops) slower on that CPU (stereo 11.5–13.3 against 14.2 frames/s, four cameras 6.4–7.6 against 9.6,
-    ``track_rate.py`` in separate processes), so it is a choice per program, not per process. Elsewhere XLA's
-    emitters are kept: on an AMD EPYC with AVX-512 (family 25, model 17) the loop emitter ran the PARSEC
-    likelihood at 0.37× the default (the same command, seven interleaved rounds, 2026-11-29 21:56 UTC: 6.97
-    against 2.57 µs per particle), as the fast runs of 2026-11-22/25 had found for an earlier version (0.24×)."""
+    Not :data:`LOOP_FUSION` (XLA's loop fusion emitter), since 2026-12-01. On an AVX2 CPU (AMD EPYC, family 25,
+    model 1) it had run the PARSEC likelihood 1.69× faster than XLA's fusion emitters and the whole tracker 1.7×
+    (2026-11-29), when each loop iteration's pixel reads were fused with the sample positions and XLA's fusion
+    emitters made the whole iteration scalar code (≈ 190 k instructions per particle and layer against the loop
+    emitter's 171 k, ``valgrind --tool=callgrind``). Since the reads run apart there (:func:`gathers_apart`) the
+    fusion emitters are as fast or faster on that CPU: the PARSEC tracker's step 1.14× / 1.16× faster at 4000 × 5
+    (as found / beside a busy process, two XLA threads; 1.17× / 1.09× on one), 1.20× / 1.22× at 1000 × 3, seven
+    or five interleaved rounds in one process, every round of 4000 × 5 above 1 (2026-12-01 23:05 UTC); the
+    likelihood alone 1.09× (``bench_parsec.py --host-choices --ab-rounds 7``). On an AMD EPYC with AVX-512
+    (model 17) the loop emitter had run the likelihood at 0.37× and on an Intel Xeon with AVX-512 (family 6,
+    model 167) 0.38× (2026-12-01, ``--host-choices``)."""
     import jax
 
     if jax.default_backend() != "cpu":
         return {}  # programs compiled for an accelerator
-    options = dict(COPY_REGIONS)
-    if _x86_without_avx512():
-        options.update(LOOP_FUSION)
     flags = os.environ.get("XLA_FLAGS", "")
-    return {name: value for name, value in options.items() if name not in flags}
+    return {name: value for name, value in COPY_REGIONS.items() if name not in flags}
 
 
 def gathers_apart() -> bool:
@@ -176,7 +172,7 @@ def gathers_apart() -> bool:
 
 def _x86_without_avx512() -> bool:
     """An x86 CPU whose widest vector extension is below AVX-512 (:func:`vector_isa`), where XLA's loops with
-    per-sample gathers compile to scalar code: :func:`particle_options` and :func:`gathers_apart` choose for it."""
+    per-sample gathers compile to scalar code: :func:`gathers_apart` chooses for it."""
     return vector_isa() in ("AVX2", "AVX", "SSE")
 
 

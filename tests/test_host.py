@@ -80,20 +80,22 @@ def test_this_machine_as_lscpu_reads_it():
 @pytest.mark.parametrize(
     ("isa", "xla_flags", "expected"),
     [
-        ("AVX2", "", {**host.COPY_REGIONS, **host.LOOP_FUSION}),
-        ("AVX", "--xla_force_host_platform_device_count=2", {**host.COPY_REGIONS, **host.LOOP_FUSION}),
+        ("AVX2", "", host.COPY_REGIONS),
+        ("AVX", "--xla_force_host_platform_device_count=2", host.COPY_REGIONS),
         ("AVX-512", "", host.COPY_REGIONS),
         ("aarch64", "", host.COPY_REGIONS),
-        ("AVX2", "--xla_cpu_use_fusion_emitters=true", host.COPY_REGIONS),  # the user's XLA_FLAGS decide
-        ("AVX-512", "--xla_cpu_copy_insertion_use_region_analysis=false", {}),
+        ("AVX-512", "--xla_cpu_copy_insertion_use_region_analysis=false", {}),  # the user's XLA_FLAGS decide
     ],
 )
-def test_particle_options_loop_fusion_on_x86_without_avx512_unless_xla_flags_say(
+def test_particle_options_copy_regions_on_every_cpu_unless_xla_flags_say(
     monkeypatch, isa, xla_flags, expected
 ):
+    """XLA's fusion emitters (its default) on every CPU, the loop emitter no longer on x86 without AVX-512; copy
+    insertion with region analysis unless the user's ``XLA_FLAGS`` name it."""
     monkeypatch.setattr(host, "vector_isa", lambda: isa)
     monkeypatch.setenv("XLA_FLAGS", xla_flags)
     assert host.particle_options() == expected
+    assert not host.LOOP_FUSION.items() <= host.particle_options().items()
 
 
 @pytest.mark.parametrize(
@@ -120,8 +122,9 @@ def test_no_cpu_option_for_programs_compiled_for_an_accelerator(monkeypatch):
 
 
 def test_particle_options_compile_a_while_loop_to_the_same_values(monkeypatch):
-    """This XLA accepts every option (an unknown one is an error at compile time) and they change no value: a
-    while loop carrying arrays that it updates from one another (the kind of loop copy insertion copies)."""
+    """This XLA accepts every option and the loop emitter's (an unknown one is an error at compile time), and they
+    change no value: a while loop carrying arrays that it updates from one another (the kind of loop copy
+    insertion copies)."""
     import jax
     import jax.numpy as jnp
 
@@ -136,9 +139,12 @@ def test_particle_options_compile_a_while_loop_to_the_same_values(monkeypatch):
 
     x = jnp.linspace(-2.0, 3.0, 64, dtype=jnp.float32)
     ref = jax.jit(f)(x)
-    out = jax.jit(f, compiler_options=host.particle_options())(x)
-    for a, b in zip(ref, out, strict=True):
-        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    for options in (host.particle_options(), {**host.particle_options(), **host.LOOP_FUSION}):
+        out = jax.jit(f, compiler_options=options)(
+            x
+        )  # LOOP_FUSION: bench_parsec.py --host-choices compiles it
+        for a, b in zip(ref, out, strict=True):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
 @pytest.mark.parametrize("threads", [None, 1])

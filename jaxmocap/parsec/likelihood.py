@@ -44,7 +44,7 @@ the sphere test uses its static sphere counts (:func:`_static_sphere_counts`, Nu
 concrete inside ``jit``) and is compiled as a computation of its own (:func:`_on_its_own`). The programs that
 evaluate it (:func:`jit_loglik_batch`, the PARSEC tracker's step) are compiled with
 :func:`jaxmocap.host.particle_options`: copy insertion with region analysis (fewer copies of the loops' carried
-arrays) and, on an x86 CPU without AVX-512, XLA's loop fusion emitter (1.7× there).
+arrays); XLA's fusion emitters (its default) since the reads run apart, faster there than the loop emitter.
 See ``benchmarks/perf/bench_parsec.py`` and ``benchmarks/perf/instructions.py``.
 """
 
