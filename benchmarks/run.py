@@ -493,6 +493,8 @@ BENCHMARKS: dict[str, Script] = {k: s for k, s in SCRIPTS.items() if s.fn is not
 
 #: the files under results/ that no registered command writes as a whole, and what makes them
 OTHER_RESULTS: dict[str, str] = {
+    "vs_bodytrack_intel_avx512.md": "`python benchmarks/perf/vs_bodytrack.py --rounds 5 --auto-rounds` on an Intel "
+    "Xeon (family 6, model 167) with AVX-512, 2026-12-01 19:19 UTC (kept beside `vs_bodytrack.md`, the latest CPU's)",
     "vs_bodytrack_epyc_avx2.md": "`python benchmarks/perf/vs_bodytrack.py --rounds 5 --auto-rounds --against "
     "9ca9ca5` on an AMD EPYC (family 25, model 17) whose AVX-512 was not exposed, 2026-12-01 08:36 UTC (kept "
     "beside `vs_bodytrack.md`, the latest CPU's)",
