@@ -141,11 +141,20 @@ class Tracker:
     """jaxmocap's PARSEC tracker at ``particles`` × ``layers``: :func:`jaxmocap.parsec.annealing.parsec_apf` with the
     PARSEC likelihood and bodytrack's initialisation (``InitialPose + N(0, σ_0)`` weighted against frame 0 with its
     β), the start and the step each jitted once (compiled by the first :meth:`run`). ``package``: the ``jaxmocap``
-    package to build it from (default this checkout's; :func:`common.package_at` for another revision's). Each
+    package to build it from (default this checkout's; :func:`common.package_at` for another revision's);
+    ``options``: XLA's compiler options of both (default: those the package's ``jaxmocap track`` uses). Each
     frame's observation is read from the sequence folder as ``jaxmocap track`` reads it (the package's
     ``ParsecSource``: the BMPs decoded, the edge and foreground maps computed), as bodytrack reads its frames."""
 
-    def __init__(self, seq, particles: int, layers: int, package=None, folder: pathlib.Path = SEQ):
+    def __init__(
+        self,
+        seq,
+        particles: int,
+        layers: int,
+        package=None,
+        folder: pathlib.Path = SEQ,
+        options: dict | None = None,
+    ):
         import jax
         import jax.numpy as jnp
 
@@ -161,8 +170,8 @@ class Tracker:
         x0 = jnp.asarray(seq.initial_pose, jnp.float32)
         loglik = ptrack.make_loglik(seq.shape, seq.cameras)  # bodytrack drops invalid poses (−1e10)
         filt = parsec_apf(loglik, std, particles, layers)
-        # the options the package's own ``jaxmocap track`` compiles the step with
-        options = common.particle_options_of(ptrack)
+        if options is None:  # the options the package's own ``jaxmocap track`` compiles the step with
+            options = common.particle_options_of(ptrack)
         self._start = jax.jit(
             lambda k, o: ptrack.weighted_start(filt, loglik, k, x0, std, o), compiler_options=options
         )

@@ -145,11 +145,11 @@ def particle_options() -> dict[str, bool]:
     (2026-11-29), when each loop iteration's pixel reads were fused with the sample positions and XLA's fusion
     emitters made the whole iteration scalar code (≈ 190 k instructions per particle and layer against the loop
     emitter's 171 k, ``valgrind --tool=callgrind``). Since the reads run apart there (:func:`gathers_apart`) the
-    fusion emitters are as fast or faster on that CPU: the PARSEC tracker's step 1.14× / 1.16× faster at 4000 × 5
-    (as found / beside a busy process, two XLA threads; 1.17× / 1.09× on one), 1.20× / 1.22× at 1000 × 3, seven
-    or five interleaved rounds in one process, every round of 4000 × 5 above 1 (2026-12-01 23:05 UTC); the
-    likelihood alone 1.09× (``bench_parsec.py --host-choices --ab-rounds 7``). On an AMD EPYC with AVX-512
-    (model 17) the loop emitter had run the likelihood at 0.37× and on an Intel Xeon with AVX-512 (family 6,
+    fusion emitters are as fast or faster on that CPU: the PARSEC tracker's step at 4000 × 5 1.06–1.14× / 1.16–1.17×
+    faster (medians of two runs, as found / beside a busy process, two XLA threads; 1.17× / 1.09× on one), at 1000 ×
+    3 1.01–1.20× / 1.04–1.22×, five or seven interleaved rounds in one process (2026-12-01 23:05–23:25 UTC,
+    ``bench_parsec.py --host-choices``, which times the tracker too); the likelihood alone 1.09–1.19×. On an AMD
+    EPYC with AVX-512 (model 17) the loop emitter had run the likelihood at 0.37× and on an Intel Xeon with AVX-512 (family 6,
     model 167) 0.38× (2026-12-01, ``--host-choices``)."""
     import jax
 

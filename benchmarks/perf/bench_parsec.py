@@ -36,7 +36,10 @@ difference of its log-likelihoods from the default's (0: bit-identical).
 ``--host-choices`` does the same for the four compilations :mod:`jaxmocap.host` chooses between by CPU (the
 pixel reads as gathers of their own or fused into the sampling loop, :func:`jaxmocap.host.gathers_apart`; XLA's
 loop or fusion emitters, :data:`jaxmocap.host.LOOP_FUSION`), the first row this CPU's choice — to check the choice
-on a CPU it was not measured on:
+on a CPU it was not measured on; and, where sequenceB_2's folder is there (``benchmarks/bodytrack.py``), the PARSEC
+tracker's step (:class:`bodytrack.Tracker`, frames overlapped as ``jaxmocap track`` runs them) compiled with either
+emitter, at 4000 × 5 and 1000 × 3, as found and beside one busy process, interleaved in this process (seconds per
+frame; its estimates differ only through float rounding at pixel borders):
 
     .venv/bin/python benchmarks/perf/bench_parsec.py --bodytrack-rounds 0 --host-choices --ab-rounds 9
 
@@ -189,6 +192,38 @@ def host_choices(shape, cams) -> dict:
     return progs
 
 
+def tracker_emitters_ab(rounds: int, sizes=((4000, 5), (1000, 3))) -> None:
+    """Print the PARSEC tracker's seconds per frame with XLA's fusion emitters (:func:`jaxmocap.host.particle_options`)
+    and with its loop emitter (:data:`jaxmocap.host.LOOP_FUSION` added), ``rounds`` interleaved rounds in this
+    process, as found and beside one busy process (:func:`bodytrack.busy`): per round the median frame of two runs
+    of the sequence (seeds 0, 1), the ratio loop / fusion per round (above 1: the fusion emitters are faster)."""
+    seq = parsec.load_sequence(bodytrack.SEQ)
+    ways = {"fusion": host.particle_options(), "loop": {**host.particle_options(), **host.LOOP_FUSION}}
+    print(
+        f"\nThe PARSEC tracker per frame with XLA's fusion or loop emitters, {rounds} interleaved rounds:\n"
+    )
+    print(
+        "| particles × layers | condition | fusion s/frame | loop s/frame | loop / fusion, per round | median |"
+    )
+    print("|---|---|---|---|---|---|")
+    for particles, layers in sizes:
+        trackers = {k: bodytrack.Tracker(seq, particles, layers, options=o) for k, o in ways.items()}
+        for t in trackers.values():
+            t.run(0, overlap=True)  # compiles
+        for condition in ("as found", "+1 busy process"):
+            got = {k: [] for k in trackers}
+            with bodytrack.busy(condition != "as found"):
+                for r in range(rounds):
+                    for k in list(trackers)[:: 1 if r % 2 == 0 else -1]:
+                        runs = [trackers[k].run(seed, overlap=True).frame for seed in (0, 1)]
+                        got[k].append(float(np.median(np.concatenate(runs))))
+            ratio = np.asarray(got["loop"]) / np.asarray(got["fusion"])
+            print(
+                f"| {particles} × {layers} | {condition} | {np.median(got['fusion']):.4f} | "
+                f"{np.median(got['loop']):.4f} | {', '.join(f'{q:.2f}' for q in ratio)} | **{np.median(ratio):.2f}** |"
+            )
+
+
 def likelihood_at(rev: str):
     """``jaxmocap.parsec.likelihood`` as of git revision ``rev``, with the rest of the package as of ``rev`` too (the
     cylinders, cameras and images it imports): :func:`common.package_at`."""
@@ -304,6 +339,8 @@ def main(args):
             args.ab_rounds,
             "The compilations jaxmocap.host chooses between",
         )
+        if bodytrack.SEQ.is_dir():
+            tracker_emitters_ab(args.ab_rounds)
     if args.against:
         at = likelihood_at(args.against)
         options = common.particle_options_of(at)  # the options that revision compiles it with
