@@ -149,8 +149,8 @@ def particle_options() -> dict[str, bool]:
     faster (medians of two runs, as found / beside a busy process, two XLA threads; 1.17× / 1.09× on one), at 1000 ×
     3 1.01–1.20× / 1.04–1.22×, five or seven interleaved rounds in one process (2026-12-01 23:05–23:25 UTC,
     ``bench_parsec.py --host-choices``, which times the tracker too); the likelihood alone 1.09–1.19×. On an AMD
-    EPYC with AVX-512 (model 17) the loop emitter had run the likelihood at 0.37× and on an Intel Xeon with AVX-512 (family 6,
-    model 167) 0.38× (2026-12-01, ``--host-choices``)."""
+    EPYC with AVX-512 (model 17) the loop emitter had run the likelihood at 0.37× and on an Intel Xeon with
+    AVX-512 (family 6, model 167) at 0.38× (2026-12-01, ``--host-choices``)."""
     import jax
 
     if jax.default_backend() != "cpu":
