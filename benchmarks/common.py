@@ -171,9 +171,12 @@ def checkout_at(rev: str, into: pathlib.Path) -> pathlib.Path:
     return into
 
 
-def run_cli(root: pathlib.Path, cache: pathlib.Path, args: list[str]) -> float:
-    """Wall seconds, process start to exit, of ``python -m jaxmocap.cli ARGS`` run in ``root`` (whose ``jaxmocap``
-    package it imports) with the compilation cache in ``cache``."""
+def run_python(
+    root: pathlib.Path, args: list[str], cache: pathlib.Path, pythonpath: str | None = None, what: str = ""
+) -> float:
+    """Wall seconds, process start to exit, of ``python ARGS`` run in ``root`` (whose ``jaxmocap`` package it
+    imports) with the compilation cache in ``cache`` and ``PYTHONPATH`` set to ``pythonpath`` (unset by default);
+    a failure is raised naming ``what`` (default: the command)."""
     import os
     import subprocess
     import sys
@@ -181,19 +184,24 @@ def run_cli(root: pathlib.Path, cache: pathlib.Path, args: list[str]) -> float:
     env = dict(os.environ, JAXMOCAP_CACHE_DIR=str(cache), JAX_PLATFORMS="cpu")
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
     env.pop("PYTHONPATH", None)
+    if pythonpath:
+        env["PYTHONPATH"] = pythonpath
     # Python's bytecode cache as an installation has it (a shell with PYTHONDONTWRITEBYTECODE set compiles every
     # module of the package from source in every process: 0.2 s of a warm start)
     env.pop("PYTHONDONTWRITEBYTECODE", None)
     t0 = time.perf_counter()
-    proc = subprocess.run(
-        [sys.executable, "-m", "jaxmocap.cli", *args], capture_output=True, text=True, env=env, cwd=root
-    )
+    proc = subprocess.run([sys.executable, *args], capture_output=True, text=True, env=env, cwd=root)
     wall = time.perf_counter() - t0
     if proc.returncode != 0:
-        raise RuntimeError(
-            f"jaxmocap {args[0]} ({root}) failed: {(proc.stderr or proc.stdout).strip()[-400:]}"
-        )
+        what = what or f"python {' '.join(args)}"
+        raise RuntimeError(f"{what} ({root}) failed: {(proc.stderr or proc.stdout).strip()[-400:]}")
     return wall
+
+
+def run_cli(root: pathlib.Path, cache: pathlib.Path, args: list[str]) -> float:
+    """Wall seconds, process start to exit, of ``python -m jaxmocap.cli ARGS`` run in ``root`` (whose ``jaxmocap``
+    package it imports) with the compilation cache in ``cache`` (:func:`run_python`)."""
+    return run_python(root, ["-m", "jaxmocap.cli", *args], cache, what=f"jaxmocap {args[0]}")
 
 
 def track_options(items) -> dict:

@@ -380,5 +380,5 @@ def test_startup_ab_names_the_installed_version_of_a_requirement():
     import numpy
 
     m = runner.load("startup_ab")
-    for req in ("numpy==1.26.4", "numpy>=3", "numpy<2"):
+    for req in ("numpy==1.26.4", "numpy>=3", "numpy<2", "numpy~=1.26", "numpy!=2.0.0"):
         assert m.installed(req) == f"numpy=={numpy.__version__}"

@@ -25,7 +25,6 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import time
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmarks/: the shared modules
 import bodytrack
@@ -36,23 +35,10 @@ def installed(requirement: str) -> str:
     """The installed version of the distribution ``requirement`` names (``ml_dtypes==0.7.0`` → ``0.6.0``)."""
     from importlib import metadata
 
-    name = requirement.split("==")[0].split(">")[0].split("<")[0].strip()
+    from packaging.requirements import Requirement
+
+    name = Requirement(requirement).name
     return f"{name}=={metadata.version(name)}"
-
-
-def wall(args: list[str], pythonpath: str | None, cwd: pathlib.Path) -> float:
-    """Wall seconds of ``python ARGS`` in a new process (``PYTHONPATH`` set to ``pythonpath``, or unset)."""
-    env = dict(os.environ, JAX_PLATFORMS="cpu")
-    env.pop("PYTHONPATH", None)
-    env.pop("PYTHONDONTWRITEBYTECODE", None)  # bytecode read as an installation has it (common.run_cli)
-    if pythonpath:
-        env["PYTHONPATH"] = pythonpath
-    t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, *args], capture_output=True, text=True, env=env, cwd=cwd)
-    seconds = time.perf_counter() - t0
-    if proc.returncode != 0:
-        raise RuntimeError(f"python {' '.join(args)} failed: {(proc.stderr or proc.stdout).strip()[-400:]}")
-    return seconds
 
 
 def main(argv=None) -> int:
@@ -67,25 +53,27 @@ def main(argv=None) -> int:
     subprocess.run(pip, check=True)
     mine = ", ".join(installed(v) for v in a.versions)
     theirs = ", ".join(a.versions)
-    sides = {mine: None, theirs: str(other)}
-    commands = {"python -c 'import jax'": ["-c", "import jax"]}
+    # label → (PYTHONPATH, compilation cache) of each side
+    sides = {mine: (None, work / "cache0"), theirs: (str(other), work / "cache1")}
+    # command name → label → python's arguments
+    commands = {"python -c 'import jax'": {label: ["-c", "import jax"] for label in sides}}
     if bodytrack.SEQ.is_dir():
-        for k, side in enumerate(sides.values()):
-            cache = work / f"cache{k}"
-            track = ["-m", "jaxmocap.cli", "track", str(bodytrack.SEQ), "--frames", "0:1", "--no-plots"]
-            track += ["--overwrite", "--out", str(work / f"run{k}")]
-            commands.setdefault("warm one-frame PARSEC track --no-plots", {})[side] = track
-            os.environ["JAXMOCAP_CACHE_DIR"] = str(cache)
-            wall(track, side, common.ROOT)  # fills the cache (untimed)
+        track = commands["warm one-frame PARSEC track --no-plots"] = {
+            label: ["-m", "jaxmocap.cli", "track", str(bodytrack.SEQ), "--frames", "0:1", "--no-plots"]
+            + ["--overwrite", "--out", str(work / f"run{k}")]
+            for k, label in enumerate(sides)
+        }
+        for label, (path, cache) in sides.items():  # fills each side's cache (untimed)
+            common.run_python(common.ROOT, track[label], cache, path)
     rows = []
     for r in range(a.rounds):
         for condition in ("as found", "+1 busy process"):
             with bodytrack.busy(condition != "as found"):
-                for name, cmd in commands.items():
+                for name, args in commands.items():
                     times = {}
-                    for k, (label, side) in list(enumerate(sides.items()))[:: 1 if r % 2 == 0 else -1]:
-                        os.environ["JAXMOCAP_CACHE_DIR"] = str(work / f"cache{k}")
-                        times[label] = wall(cmd[side] if isinstance(cmd, dict) else cmd, side, common.ROOT)
+                    for label in list(sides)[:: 1 if r % 2 == 0 else -1]:
+                        path, cache = sides[label]
+                        times[label] = common.run_python(common.ROOT, args[label], cache, path)
                     rows.append((r, condition, name, os.getloadavg()[0], times[mine], times[theirs]))
     lines = [
         f"### Start-up with {theirs} against {mine}, side by side\n",
