@@ -139,10 +139,9 @@ def test_particle_options_compile_a_while_loop_to_the_same_values(monkeypatch):
 
     x = jnp.linspace(-2.0, 3.0, 64, dtype=jnp.float32)
     ref = jax.jit(f)(x)
+    # LOOP_FUSION: bench_parsec.py --host-choices compiles it
     for options in (host.particle_options(), {**host.particle_options(), **host.LOOP_FUSION}):
-        out = jax.jit(f, compiler_options=options)(
-            x
-        )  # LOOP_FUSION: bench_parsec.py --host-choices compiles it
+        out = jax.jit(f, compiler_options=options)(x)
         for a, b in zip(ref, out, strict=True):
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 

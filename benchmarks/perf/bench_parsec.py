@@ -33,13 +33,14 @@ difference of its log-likelihoods from the default's (0: bit-identical).
 
     .venv/bin/python benchmarks/perf/bench_parsec.py --bodytrack-rounds 0 --edge-chunks 8 --ab-rounds 15
 
-``--host-choices`` does the same for the four compilations :mod:`jaxmocap.host` chooses between by CPU (the
-pixel reads as gathers of their own or fused into the sampling loop, :func:`jaxmocap.host.gathers_apart`; XLA's
-loop or fusion emitters, :data:`jaxmocap.host.LOOP_FUSION`), the first row this CPU's choice — to check the choice
-on a CPU it was not measured on; and, where sequenceB_2's folder is there (``benchmarks/bodytrack.py``), the PARSEC
-tracker's step (:class:`bodytrack.Tracker`, frames overlapped as ``jaxmocap track`` runs them) compiled with either
-emitter, at 4000 × 5 and 1000 × 3, as found and beside one busy process, interleaved in this process (seconds per
-frame; its estimates differ only through float rounding at pixel borders):
+``--host-choices`` does the same for the four compilations of two choices (the pixel reads as gathers of their own
+or fused into the sampling loop, which :func:`jaxmocap.host.gathers_apart` chooses by CPU; XLA's fusion emitters,
+:func:`jaxmocap.host.particle_options`'s on every CPU, or its loop emitter, :data:`jaxmocap.host.LOOP_FUSION`), the
+first row this CPU's compilation — to check the choices on a CPU they were not measured on; and, where
+sequenceB_2's folder is there (``benchmarks/bodytrack.py``), the PARSEC tracker's step (:class:`bodytrack.Tracker`,
+frames overlapped as ``jaxmocap track`` runs them) compiled with either emitter, at 4000 × 5 and 1000 × 3, as found
+and beside one busy process, interleaved in this process (seconds per frame; its estimates differ only through
+float rounding at pixel borders):
 
     .venv/bin/python benchmarks/perf/bench_parsec.py --bodytrack-rounds 0 --host-choices --ab-rounds 9
 
@@ -99,8 +100,8 @@ def _args(argv=None):
     ap.add_argument(
         "--host-choices",
         action="store_true",
-        help="A/B of the four compilations jaxmocap.host chooses between (gathers apart or fused, XLA's loop or "
-        "fusion emitters)",
+        help="A/B of the four compilations of the pixel reads apart or fused (jaxmocap.host's choice) and XLA's "
+        "fusion or loop emitters",
     )
     ap.add_argument("--ab-rounds", type=int, default=7, help="interleaved rounds of the A/B options")
     return ap.parse_args(argv)
@@ -177,9 +178,10 @@ def ab_table(progs: dict, X, obs, rounds: int, title: str, calls: int = 5) -> No
 
 
 def host_choices(shape, cams) -> dict:
-    """The likelihood compiled the four ways :mod:`jaxmocap.host` chooses between (name → program), this CPU's own
-    choice first: gathers apart or fused × XLA's loop (:data:`jaxmocap.host.LOOP_FUSION`) or fusion emitters, each
-    with :data:`jaxmocap.host.COPY_REGIONS`."""
+    """The likelihood compiled four ways (name → program), this CPU's own compilation first: gathers apart or fused
+    (:func:`jaxmocap.host.gathers_apart`) × XLA's loop (:data:`jaxmocap.host.LOOP_FUSION`) or fusion emitters, each
+    with :data:`jaxmocap.host.COPY_REGIONS`; "this CPU's choice" is what :func:`jaxmocap.host.gathers_apart` and
+    :func:`jaxmocap.host.particle_options` give here."""
     chosen = (host.gathers_apart(), host.LOOP_FUSION.items() <= host.particle_options().items())
     ways = sorted(((a, loop) for a in (True, False) for loop in (True, False)), key=lambda w: w != chosen)
     progs = {}
@@ -337,7 +339,7 @@ def main(args):
             Xj,
             obs,
             args.ab_rounds,
-            "The compilations jaxmocap.host chooses between",
+            "The pixel reads apart or fused × XLA's fusion or loop emitters",
         )
         if bodytrack.SEQ.is_dir():
             tracker_emitters_ab(args.ab_rounds)
