@@ -93,11 +93,16 @@ def scene():
     return model, rig, x, _observe(model, rig, x)
 
 
+#: ``Likelihood.view_energies`` as one compiled program per likelihood structure (run eagerly, each of its hundreds
+#: of operations would be compiled for its shapes on its own)
+_view_energies = jax.jit(L.Likelihood.view_energies)
+
+
 def _energy(model, rig, x, obs, cue, surface_points=300, ref=None):
     lik = L.Likelihood.create(model, rig, [cue], surface_points=surface_points)
     if cue.spec.reference:
         lik = lik.with_references(x if ref is None else ref[0], obs if ref is None else ref[1])
-    return np.asarray(lik.view_energies(x, obs))[0], lik
+    return np.asarray(_view_energies(lik, x, obs))[0], lik
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -272,7 +277,7 @@ def test_foreground_edges_and_depth_closed_forms(scene):
         depth=[cv2.dilate(np.asarray(r.depth, np.float32), k) for r in rs],
     )
     E0, lik = _energy(model, rig, x, dil, L.Cue("depth"))
-    E1 = np.asarray(lik.view_energies(x.at[model.dof_index("left_shoulder_rx")].set(0.3), dil))[0]
+    E1 = np.asarray(_view_energies(lik, x.at[model.dof_index("left_shoulder_rx")].set(0.3), dil))[0]
     assert np.all(E0 < 0.02) and np.all(E1 > E0 + 0.05), (E0, E1)
 
 
@@ -325,7 +330,7 @@ def test_colour_histogram_closed_forms(scene):
     assert np.all(E / (len(segs) / (2 * 0.25)) < 0.1)
     c = np.array([0.1, 0.8, 0.45], np.float32)
     flat = _observe(model, rig, x, rgb=[np.broadcast_to(c, (H, W, 3)).copy()] * 2)
-    E_flat = np.asarray(lik.view_energies(x, flat))[0]
+    E_flat = np.asarray(_view_energies(lik, x, flat))[0]
     b = int(colour_cues._colour_bins(jnp.asarray(np.round(c * 255).astype(np.int32)), 4, "rgb"))
     q = np.asarray(lik.references[0])  # (V, R, B)
     onehot = np.zeros(64)
@@ -347,7 +352,7 @@ def test_homogeneous_colour_of_noise(scene):
     expect = np.sqrt((256**2 - 1) / 12) / 255
     assert np.all(np.abs(sd - expect) < 0.03), (sd, expect)  # ~20-100 samples a limb, 8 limbs
     uniform = _observe(model, rig, x, rgb=[np.full((H, W, 3), 0.3, np.float32)] * 2)
-    np.testing.assert_allclose(np.asarray(lik.view_energies(x, uniform))[0], 0.0, atol=1e-5)
+    np.testing.assert_allclose(np.asarray(_view_energies(lik, x, uniform))[0], 0.0, atol=1e-5)
 
 
 def test_colour_template_closed_forms(scene):
@@ -359,7 +364,7 @@ def test_colour_template_closed_forms(scene):
     shifted = _observe(
         model, rig, x, rgb=[np.asarray(obs.rgb[v]) + 0.08 for v in range(2)]
     )  # max 0.98: no clip
-    np.testing.assert_allclose(np.asarray(lik.view_energies(x, shifted))[0], 0.08, atol=1.0 / 255)
+    np.testing.assert_allclose(np.asarray(_view_energies(lik, x, shifted))[0], 0.08, atol=1.0 / 255)
     # bilinear reading: the template is read the same way, so the energy at the first frame is 0 as well
     E, _ = _energy(model, rig, x, obs, L.Cue("colour_template", params={"bilinear": True}))
     np.testing.assert_allclose(E, 0.0, atol=1e-6)
@@ -409,7 +414,7 @@ def test_keypoints_against_opencv_projection(scene):
     np.testing.assert_allclose(E, 0.0, atol=1e-6)
     kp[..., 0] += 6.0
     kp[..., 1] -= 8.0
-    E = np.asarray(lik.view_energies(x, obs._replace(keypoints2d=jnp.asarray(kp))))[0]
+    E = np.asarray(_view_energies(lik, x, obs._replace(keypoints2d=jnp.asarray(kp))))[0]
     np.testing.assert_allclose(E, 1.0 / (1.0 + 1.0), rtol=1e-4)  # r = 10/10
 
 

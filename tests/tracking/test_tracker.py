@@ -487,7 +487,7 @@ def test_colour_cues_track_with_first_frame_references_and_resume(sequence, tmp_
         for f in ("rgb", "skin", "blobs3d"):
             assert first.has(f), f
         x0 = jnp.asarray(np.load(tmp_path / "full" / "resume.npz")["x0"], jnp.float32)
-        e = lik.energies(x0, first)
+        e = jax.jit(lik.energies)(x0, first)
         assert float(e[names.index("colour_template")]) == pytest.approx(0.0, abs=1e-5)  # √(… + ε) per sample
 
         part = tmp_path / "part"
