@@ -380,9 +380,10 @@ def test_fit_pose_2d_depth_its_jacobian_and_exact_depths(cmu):
     u = ik.from_state(model, jnp.asarray(x0))
     args = (model, rj, jnp.asarray(uv, jnp.float32), jnp.ones(uv.shape[:2]), jnp.ones_like(u), u)
     args += (jnp.asarray(z_true, jnp.float32), jnp.sqrt(jnp.asarray(wz, jnp.float32)))
-    auto = jax.jacfwd(ik._residual_2d_depth)(u, *args)
+    # both compiled (run eagerly, each of their hundreds of operations would be compiled on its own)
+    auto = jax.jit(jax.jacfwd(ik._residual_2d_depth))(u, *args)
     np.testing.assert_allclose(
-        np.asarray(ik._residual_2d_depth_jac(u, *args)), np.asarray(auto), atol=2e-3, rtol=1e-3
+        np.asarray(jax.jit(ik._residual_2d_depth_jac)(u, *args)), np.asarray(auto), atol=2e-3, rtol=1e-3
     )
     fitted = ik.fit_pose_2d(
         model, rj, uv, np.ones(uv.shape[:2]), x0, maxiter=60, depth=z_true, depth_weights=wz
